@@ -1,0 +1,53 @@
+"""The time-parametrised reference that controllers track (output of planning)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A reference trajectory sampled at the MPC step.
+
+    Attributes:
+        dt: [s] sampling period (the MPC step).
+        states: (K, 3) [m, m, rad] reference x, y, yaw; yaw is unwrapped (continuous).
+        inputs: (K, 2) [m/s, rad/s] reference v, w; the last sample is (0, 0) at the goal.
+        area: (K,) int index into ``SafeAreas.rects`` of a safe area containing each sample;
+            consecutive samples share an area or lie in adjacent areas of the corridor.
+    """
+
+    dt: float
+    states: np.ndarray
+    inputs: np.ndarray
+    area: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.states.shape[0])
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Result of planning from a start pose to a goal through the safe areas.
+
+    Attributes:
+        ok: False when no path exists; then ``reason`` says why and the arrays are empty.
+        reason: ``"ok"`` or ``"no_path"`` (or another short machine-readable reason).
+        corridor: (C,) int safe-area indices from the start area to the goal area.
+        goal: (2,) [m] goal actually used (projected into the safe areas when needed).
+        waypoints: (W, 2) [m] start, portal crossings, goal.
+        path: (M, 2) [m] uniformly arc-length-interpolated waypoint polyline (eq. 5-6).
+        smoothed: (S, 2) [m] dense samples of the smoothed B-spline (eq. 7).
+        reference: the time-parametrised reference, or None when ``ok`` is False.
+    """
+
+    ok: bool
+    reason: str
+    corridor: np.ndarray
+    goal: np.ndarray
+    waypoints: np.ndarray
+    path: np.ndarray
+    smoothed: np.ndarray
+    reference: Reference | None
