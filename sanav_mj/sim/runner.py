@@ -14,6 +14,7 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -148,7 +149,8 @@ def run_episode(
     config: RunConfig = RunConfig(),
     mismatch: Mismatch = Mismatch(),
     rng: np.random.Generator | None = None,
-    measurement_fault=None,
+    measurement_fault: Callable[[int, np.ndarray], np.ndarray] | None = None,
+    on_step: Callable[[int, EpisodeTrace], None] | None = None,
 ) -> Episode:
     """Run one closed-loop episode.
 
@@ -164,6 +166,8 @@ def run_episode(
             (fault injection: NaN, jumps). A non-finite or implausible measurement is
             rejected: the previous valid one is held, and after 5 consecutive rejections the
             run stops the robot and ends with ``bad_measurement``.
+        on_step: optional ``f(step, trace)`` called after each step is recorded (the edge
+            hook for live recording; algorithms never log themselves).
 
     Returns:
         The :class:`Episode` with its trace.
@@ -246,6 +250,8 @@ def run_episode(
         trace.predicted.append(cmd.predicted)
         trace.rect_ids.append(cmd.rect_ids)
         trace.margins.append(cmd.margins)
+        if on_step is not None:
+            on_step(step, trace)
 
         failures += not cmd.ok
         consecutive_failures = consecutive_failures + 1 if not cmd.ok else 0

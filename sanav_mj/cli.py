@@ -1,0 +1,257 @@
+"""The ``sanav-mj`` command line (see the design contract for the commands and JSON).
+
+Exit codes: 0 success; 1 a run ended without reaching the goal; 2 bad input (one line on
+stderr naming the file or argument and what is wrong, no traceback).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import NoReturn
+
+CONTROLLERS = ("sa-mpc", "mpc", "dwa", "dqn")
+
+
+class BadInput(Exception):
+    """Bad input from the user: reported as one line on stderr with exit code 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors and exit code 2."""
+
+    def error(self, message: str) -> NoReturn:  # noqa: D401 - argparse API
+        raise BadInput(f"{self.prog}: {message}")
+
+
+def _positive_float(name: str):
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name}: expected a number, got {text!r}") from None
+        if not math.isfinite(value) or value <= 0:
+            raise argparse.ArgumentTypeError(f"{name}: expected a finite number > 0, got {text!r}")
+        return value
+
+    return parse
+
+
+def _resolution(text: str) -> float:
+    value = _positive_float("--resolution")(text)
+    if not 0.005 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"--resolution: expected 0.005 <= M <= 1.0 metres, got {text!r}")
+    return value
+
+
+def _finite_float(name: str):
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name}: expected a number, got {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{name}: expected a finite number, got {text!r}")
+        return value
+
+    return parse
+
+
+def _count(name: str, lo: int = 1, hi: int = 10_000):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name}: expected a whole number, got {text!r}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"{name}: expected {lo} <= N <= {hi}, got {text!r}")
+        return value
+
+    return parse
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``sanav-mj``."""
+    p = _Parser(prog="sanav-mj", description="Quadtree safe-area MPC navigation in MuJoCo.")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    d = sub.add_parser("demo", help="all built-in scenarios with SA-MPC: .rrd + .png + summary table")
+    d.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
+    d.add_argument("--no-rrd", action="store_true", help="skip the rerun recordings")
+
+    a = sub.add_parser("areas", help="grid, quadtree, safe areas, graph and reference of a scenario")
+    a.add_argument("scenario", help="MJCF file or built-in scenario name")
+    a.add_argument("--json", type=Path, help="write the areas JSON here")
+    a.add_argument("--plot", type=Path, help="write a PNG of the map here")
+    a.add_argument("--resolution", type=_resolution, default=0.05, help="grid cell size [m] (default 0.05)")
+    a.add_argument("--merge", choices=("paper", "maximal"), default="paper", help="merge rule (default paper)")
+
+    r = sub.add_parser("run", help="one closed-loop run")
+    r.add_argument("scenario", help="MJCF file or built-in scenario name")
+    r.add_argument("--controller", choices=CONTROLLERS, default="sa-mpc")
+    r.add_argument("--seed", type=_count("--seed", 0, 2**31 - 1), default=0)
+    r.add_argument("--yaw", type=_finite_float("--yaw"), default=None, help="initial yaw [rad] (default: from the seed)")
+    r.add_argument("--resolution", type=_resolution, default=0.05)
+    r.add_argument("--json", type=Path)
+    r.add_argument("--rrd", type=Path)
+    r.add_argument("--plot", type=Path)
+    r.add_argument("--mismatch", nargs="+", default=[], metavar="KEY=VALUE")
+    r.add_argument("--time-limit", type=_positive_float("--time-limit"), default=60.0, help="[s] simulated")
+
+    b = sub.add_parser("bench", help="the paper's comparison: success rates and timing table")
+    b.add_argument("scenarios", nargs="*", help="scenarios (default: all built-in)")
+    b.add_argument("--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS))
+    b.add_argument("--runs", type=_count("--runs"), default=10)
+    b.add_argument("--workers", type=_count("--workers", 1, 64), default=2)
+    b.add_argument("--out", type=Path, default=Path("out/bench"))
+    b.add_argument("--rrd", action="store_true", help="also record each run to OUT/rrd/")
+
+    rb = sub.add_parser("robustness", help="sweep model mismatch over a grid with several seeds")
+    rb.add_argument("scenarios", nargs="+")
+    rb.add_argument("--sweep", nargs="+", default=["wheel_radius=0.9,1.0,1.1"], metavar="KEY=V1,V2,...",
+                    help="one or two keys with their grid values")
+    rb.add_argument("--seeds", type=_count("--seeds"), default=5)
+    rb.add_argument("--controller", choices=CONTROLLERS, default="sa-mpc")
+    rb.add_argument("--workers", type=_count("--workers", 1, 64), default=2)
+    rb.add_argument("--out", type=Path, default=Path("out/robustness"))
+    return p
+
+
+def _write_json(path: Path, doc: dict) -> None:
+    _prepare_output(path)
+    path.write_text(json.dumps(doc, indent=1, allow_nan=False))
+
+
+def _prepare_output(path: Path) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BadInput(f"{path}: cannot create the output folder ({exc.strerror})") from None
+    if path.exists() and path.is_dir():
+        raise BadInput(f"{path}: expected a file path, got a folder")
+
+
+def _check_outputs(*paths: Path | None) -> None:
+    """Fail early (before any long work) when an output path is unusable."""
+    for path in paths:
+        if path is None:
+            continue
+        _prepare_output(path)
+        try:
+            with open(path, "ab"):
+                pass
+        except OSError as exc:
+            raise BadInput(f"{path}: cannot write ({exc.strerror})") from None
+
+
+def _cmd_areas(args) -> int:
+    from sanav_mj.eval.episode import areas_document, prepare
+
+    _check_outputs(args.json, args.plot)
+    prep = prepare(args.scenario, resolution=args.resolution, merge=args.merge)
+    doc = areas_document(prep)
+    if args.json:
+        _write_json(args.json, doc)
+    if args.plot:
+        from sanav_mj.eval.plots import plot_areas
+
+        plot_areas(prep, args.plot)
+    t = doc["timing_ms"]
+    print(
+        f"{doc['scenario']}: grid {doc['grid']['shape'][1]}x{doc['grid']['shape'][0]} @ {doc['grid']['resolution']} m, "
+        f"leaves {doc['leaves']['free']} free / {doc['leaves']['occupied']} occupied, {len(doc['rects'])} safe areas, "
+        f"{len(doc['edges'])} edges, corridor {len(doc['corridor'])} areas, {t['total']:.2f} ms"
+    )
+    return 0
+
+
+def _cmd_run(args) -> int:
+    from sanav_mj.eval.episode import run_scenario
+    from sanav_mj.sim.mismatch import parse_mismatch
+
+    mismatch = parse_mismatch(args.mismatch)
+    _check_outputs(args.json, args.rrd, args.plot)
+    out = run_scenario(
+        args.scenario,
+        controller=args.controller,
+        seed=args.seed,
+        yaw=args.yaw,
+        resolution=args.resolution,
+        mismatch=mismatch,
+        time_limit_s=args.time_limit,
+        rrd=args.rrd,
+    )
+    doc = out.document
+    if args.json:
+        _write_json(args.json, doc)
+    if args.plot:
+        from sanav_mj.eval.plots import plot_run
+
+        plot_run(out, args.plot)
+    print(
+        f"{doc['scenario']} / {doc['controller']} seed {doc['seed']}: {doc['reason']} after {doc['steps']} steps "
+        f"({doc['sim_time_s']:.1f} s), path {doc['path_length_m']:.2f} m, min clearance "
+        f"{doc['min_clearance_m']:.3f} m, collisions {doc['collisions']}, solve {doc['solve_ms']['mean']:.2f} ms mean "
+        f"/ {doc['solve_ms']['p99']:.2f} ms p99"
+    )
+    return 0 if doc["success"] else 1
+
+
+def _cmd_demo(args) -> int:
+    from sanav_mj.eval.demo import run_demo
+
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BadInput(f"--out {args.out}: cannot create the folder ({exc.strerror})") from None
+    ok = run_demo(args.out, record=not args.no_rrd)
+    return 0 if ok else 1
+
+
+def _cmd_bench(args) -> int:
+    from sanav_mj.eval.bench import run_bench
+
+    ok = run_bench(args.scenarios, args.controllers, args.runs, args.workers, args.out, record=args.rrd)
+    return 0 if ok else 1
+
+
+def _cmd_robustness(args) -> int:
+    from sanav_mj.eval.robustness import parse_sweep, run_robustness
+
+    sweep = parse_sweep(args.sweep)
+    run_robustness(args.scenarios, sweep, args.seeds, args.controller, args.workers, args.out)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``sanav-mj`` console script; returns the exit code."""
+    from sanav_mj.scene import ScenarioError
+    from sanav_mj.sim.mismatch import MismatchError
+
+    try:
+        args = build_parser().parse_args(argv)
+        handler = {
+            "areas": _cmd_areas,
+            "run": _cmd_run,
+            "demo": _cmd_demo,
+            "bench": _cmd_bench,
+            "robustness": _cmd_robustness,
+        }[args.command]
+        return handler(args)
+    except (BadInput, ScenarioError, MismatchError) as exc:
+        print(f"sanav-mj: error: {_one_line(str(exc))}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("sanav-mj: interrupted", file=sys.stderr)
+        return 130
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

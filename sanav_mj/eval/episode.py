@@ -1,0 +1,231 @@
+"""One scenario from file to result: load, map, plan, control in MuJoCo, measure.
+
+This is the composition of the whole data flow (scene -> mapping -> planning -> control ->
+sim); the CLI, ``demo``, ``bench`` and ``robustness`` all go through :func:`prepare` and
+:func:`run_scenario`, so every controller runs in the same harness and yields the same JSON.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sanav_mj.control.base import Controller
+from sanav_mj.mapping.occupancy import OccupancyGrid
+from sanav_mj.mapping.safe_areas import SafeAreas
+from sanav_mj.planning.reference import Plan
+from sanav_mj.scene import Scenario, load_scenario
+from sanav_mj.sim.mismatch import Mismatch
+from sanav_mj.sim.runner import Episode, RunConfig
+
+#: inflation margin [m] beyond the robot's footprint radius used for the grid.
+DEFAULT_MARGIN_M = 0.05
+
+
+@dataclass
+class Prepared:
+    """A scenario with its map and plan (everything that is computed before the loop).
+
+    Attributes:
+        scenario: the loaded scenario.
+        grid: the inflated occupancy grid.
+        leaves: quadtree leaves (see :mod:`sanav_mj.mapping.quadtree`).
+        areas: merged safe areas and their graph.
+        plan: planned corridor and reference from the scenario start to its goal.
+        timing_ms: [ms] stage times: rasterise, quadtree, merge, graph, plan, total.
+    """
+
+    scenario: Scenario
+    grid: OccupancyGrid
+    leaves: Any
+    areas: SafeAreas
+    plan: Plan
+    timing_ms: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class RunOutcome:
+    """A finished run: its preparation, the episode and the ``run --json`` document."""
+
+    prepared: Prepared
+    controller: str
+    start: np.ndarray
+    episode: Episode
+    document: dict[str, Any]
+
+
+def prepare(
+    spec: str | Path | Scenario,
+    resolution: float = 0.05,
+    merge: str = "paper",
+    start: np.ndarray | None = None,
+) -> Prepared:
+    """Load (if needed), map and plan a scenario.
+
+    Args:
+        spec: scenario path, built-in name, or an already loaded :class:`Scenario`.
+        resolution: [m] grid cell size.
+        merge: merge rule of the safe areas (``"paper"`` or ``"maximal"``).
+        start: (3,) [m, m, rad] start pose to plan from (default: the scenario's).
+    """
+    from sanav_mj.mapping import build_map
+    from sanav_mj.planning import plan as make_plan
+
+    scenario = spec if isinstance(spec, Scenario) else load_scenario(spec)
+    inflation = scenario.robot.footprint_radius + DEFAULT_MARGIN_M
+    m = build_map(scenario.obstacles, scenario.bounds, resolution=resolution, inflation=inflation, merge=merge)
+    t0 = time.perf_counter()
+    pose = scenario.start if start is None else np.asarray(start, dtype=float)
+    plan = make_plan(m.areas, pose, scenario.goal, scenario.robot)
+    timing = dict(m.timing_ms)
+    timing["plan"] = (time.perf_counter() - t0) * 1e3
+    timing["total"] = timing.get("total", 0.0) + timing["plan"]
+    return Prepared(scenario, m.grid, m.leaves, m.areas, plan, timing)
+
+
+def areas_document(prep: Prepared) -> dict[str, Any]:
+    """The ``areas --json`` document of the design contract."""
+    g = prep.grid
+    rects = np.asarray(prep.areas.rects, dtype=float)
+    ref = prep.plan.reference
+    return {
+        "scenario": prep.scenario.name,
+        "grid": {
+            "resolution": float(g.resolution),
+            "origin": [float(v) for v in g.origin],
+            "shape": [int(v) for v in g.shape],
+            "inflation": float(g.inflation),
+        },
+        "leaves": {"free": int(prep.leaves.n_free), "occupied": int(prep.leaves.n_occupied)},
+        "rects": rects.round(6).tolist(),
+        "edges": [
+            [int(i), int(j), round(float(w), 6)]
+            for (i, j), w in zip(np.asarray(prep.areas.edges).reshape(-1, 2), prep.areas.weights)
+        ],
+        "corridor": [int(i) for i in prep.plan.corridor],
+        "reference": [] if ref is None else np.asarray(ref.states, dtype=float).round(6).tolist(),
+        "plan": {"ok": bool(prep.plan.ok), "reason": prep.plan.reason},
+        "timing_ms": {k: float(v) for k, v in prep.timing_ms.items()},
+    }
+
+
+def initial_pose(scenario: Scenario, seed: int, yaw: float | None) -> np.ndarray:
+    """Start pose (3,) [m, m, rad]: the scenario's position with ``yaw`` or, when None, a yaw
+    drawn uniformly in [-pi, pi) from ``seed`` (the paper randomises the initial orientation)."""
+    pose = np.asarray(scenario.start, dtype=float).copy()
+    if yaw is None:
+        pose[2] = np.random.default_rng(seed).uniform(-np.pi, np.pi)
+    else:
+        pose[2] = float(yaw)
+    return pose
+
+
+def run_scenario(
+    spec: str | Path | Scenario | Prepared,
+    controller: str = "sa-mpc",
+    seed: int = 0,
+    yaw: float | None = None,
+    resolution: float = 0.05,
+    mismatch: Mismatch = Mismatch(),
+    time_limit_s: float = 60.0,
+    rrd: Path | None = None,
+    run_config: RunConfig | None = None,
+    controller_obj: Controller | None = None,
+) -> RunOutcome:
+    """Run one closed-loop episode of ``controller`` on a scenario and measure it.
+
+    Args:
+        spec: scenario path / name / :class:`Scenario`, or a :class:`Prepared` to reuse.
+        controller: ``"sa-mpc"``, ``"mpc"``, ``"dwa"`` or ``"dqn"``.
+        seed: seeds the initial yaw (when ``yaw`` is None), noise and jitter.
+        yaw: [rad] explicit initial yaw.
+        resolution: [m] grid cell size (ignored when ``spec`` is Prepared).
+        mismatch: plant-vs-model differences.
+        time_limit_s: [s] simulated time limit.
+        rrd: write a rerun recording of the run here.
+        run_config: episode settings (``time_limit_s`` overrides its time limit).
+        controller_obj: use this controller instance instead of building one by name
+            (tests inject failing solvers this way).
+    """
+    from dataclasses import replace
+
+    from sanav_mj.control.factory import make_controller
+    from sanav_mj.eval.metrics import episode_json
+    from sanav_mj.sim.mismatch import mismatched_model
+    from sanav_mj.sim.plant import Plant
+    from sanav_mj.sim.runner import run_episode
+
+    if isinstance(spec, Prepared):
+        prep0 = spec
+        scenario = spec.scenario
+    else:
+        scenario = spec if isinstance(spec, Scenario) else load_scenario(spec)
+        prep0 = None
+    start = initial_pose(scenario, seed, yaw)
+    t0 = time.perf_counter()
+    # The plan starts from the actual start pose; the map does not depend on it.
+    prep = prepare(scenario, resolution=prep0.grid.resolution if prep0 else resolution, start=start) \
+        if prep0 is None else _replan(prep0, start)
+    setup_ms = (time.perf_counter() - t0) * 1e3 if prep0 is None else prep.timing_ms.get("plan", 0.0)
+    ctrl = controller_obj if controller_obj is not None else make_controller(
+        controller, prep.scenario, prep.grid, prep.areas, prep.plan, solve_budget_ms=mismatch.solve_budget_ms
+    )
+    model = mismatched_model(scenario, mismatch) if mismatch.physical else None
+    plant = Plant(scenario, model=model)
+    cfg = replace(run_config or RunConfig(), time_limit_s=time_limit_s)
+    rng = np.random.default_rng(seed + 1)
+    recorder = None
+    if rrd is not None:
+        from sanav_mj.record import Recorder
+
+        recorder = Recorder(rrd, prep, controller)
+    if not prep.plan.ok and controller == "sa-mpc":
+        episode = _no_path_episode(plant, start)
+    else:
+        episode = run_episode(plant, ctrl, start, scenario.goal, cfg, mismatch, rng,
+                              on_step=recorder.log_step if recorder else None)
+    doc = episode_json(
+        episode,
+        scenario=scenario.name,
+        controller=controller,
+        seed=seed,
+        start=start,
+        goal=scenario.goal,
+        rects=prep.areas.rects,
+        mismatch=mismatch.changed(),
+        setup_ms=setup_ms,
+    )
+    if recorder is not None:
+        recorder.finish(episode, doc)
+    return RunOutcome(prep, controller, start, episode, doc)
+
+
+def _replan(prep: Prepared, start: np.ndarray) -> Prepared:
+    from sanav_mj.planning import plan as make_plan
+
+    t0 = time.perf_counter()
+    plan = make_plan(prep.areas, start, prep.scenario.goal, prep.scenario.robot)
+    timing = dict(prep.timing_ms)
+    timing["plan"] = (time.perf_counter() - t0) * 1e3
+    return Prepared(prep.scenario, prep.grid, prep.leaves, prep.areas, plan, timing)
+
+
+def _no_path_episode(plant, start: np.ndarray) -> Episode:
+    from sanav_mj.sim.runner import EpisodeTrace
+
+    plant.reset(start)
+    return Episode(
+        success=False,
+        reason="no_path",
+        steps=0,
+        sim_time_s=0.0,
+        collisions=0,
+        solver_failures=0,
+        final_pose=plant.pose(),
+        trace=EpisodeTrace(),
+        wall_time_s=0.0,
+    )
