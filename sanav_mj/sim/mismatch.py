@@ -120,3 +120,69 @@ def parse_mismatch(items: list[str] | tuple[str, ...]) -> Mismatch:
 def mismatch_keys() -> dict[str, tuple[float, float, str]]:
     """Valid keys with their (lower, upper, meaning)."""
     return dict(_RANGES)
+
+
+#: names in models/diff_drive.xml that the physical mismatch edits.
+_WHEELS = ("left_wheel", "right_wheel")
+
+
+def mismatched_model(scenario, mismatch: Mismatch):
+    """A compiled copy of the scenario's model with the physical mismatch applied.
+
+    Edits go through ``mujoco.MjSpec`` re-parsed from the scenario file, so the nominal
+    ``scenario.model`` is never touched:
+
+    - ``wheel_radius``: both wheel geoms' sizes scaled (radius and width);
+    - ``track``: the wheel bodies' lateral offsets scaled;
+    - ``mass``: every robot geom's mass scaled (body inertias follow from the geoms);
+    - ``actuator_gain``: the wheel velocity servos' kv scaled (gain and bias);
+    - ``torque_limit``: the wheel actuators' force range scaled;
+    - ``friction``: sliding friction of the floor and both wheels set to the value (MuJoCo
+      takes the larger of two geoms' coefficients, so both are set).
+
+    Args:
+        scenario: a loaded :class:`~sanav_mj.scene.Scenario`.
+        mismatch: the mismatch; only its physical keys are used here.
+
+    Returns:
+        mujoco.MjModel: the modified model (same names, so the plant reads it by name).
+    """
+    import mujoco
+
+    spec = mujoco.MjSpec.from_file(str(scenario.path))
+    m = mismatch
+    for name in _WHEELS:
+        geom = spec.geom(name)
+        if m.wheel_radius != 1.0:
+            size = list(geom.size)
+            size[0] *= m.wheel_radius
+            size[1] *= m.wheel_radius
+            geom.size = size
+        if m.friction is not None:
+            fr = list(geom.friction)
+            fr[0] = m.friction
+            geom.friction = fr
+        if m.track != 1.0:
+            body = spec.body(name)
+            pos = list(body.pos)
+            pos[1] *= m.track
+            body.pos = pos
+        act = spec.actuator(name)
+        if m.actuator_gain != 1.0:
+            gain = list(act.gainprm)
+            bias = list(act.biasprm)
+            gain[0] *= m.actuator_gain
+            bias[2] *= m.actuator_gain
+            act.gainprm = gain
+            act.biasprm = bias
+        if m.torque_limit != 1.0:
+            act.forcerange = [v * m.torque_limit for v in act.forcerange]
+    if m.friction is not None:
+        floor = spec.geom("floor")
+        fr = list(floor.friction)
+        fr[0] = m.friction
+        floor.friction = fr
+    if m.mass != 1.0:
+        for geom in spec.body("base").find_all(mujoco.mjtObj.mjOBJ_GEOM):
+            geom.mass = geom.mass * m.mass
+    return spec.compile()
