@@ -201,28 +201,35 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_demo(args) -> int:
-    from sanav_mj.eval.demo import run_demo
+    from sanav_mj.eval.demo import run_demo, summary_table
 
     try:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise BadInput(f"--out {args.out}: cannot create the folder ({exc.strerror})") from None
-    ok = run_demo(args.out, record=not args.no_rrd)
-    return 0 if ok else 1
+    rows = run_demo(args.out, record=not args.no_rrd)
+    print(summary_table(rows), end="")
+    print(f"wrote recordings (.rrd), plots (.png) and JSON to {args.out}/")
+    return 0 if all(r["success"] for r in rows) else 1
 
 
 def _cmd_bench(args) -> int:
-    from sanav_mj.eval.bench import run_bench
+    from sanav_mj.eval.bench import markdown_table, run_bench
 
-    ok = run_bench(args.scenarios, args.controllers, args.runs, args.workers, args.out, record=args.rrd)
-    return 0 if ok else 1
+    summary = run_bench(args.scenarios, args.controllers, args.runs, args.workers, args.out, record=args.rrd)
+    print(markdown_table(summary), end="")
+    print(f"wrote {args.out}/results.csv, table.md, success.png")
+    return 0
 
 
 def _cmd_robustness(args) -> int:
     from sanav_mj.eval.robustness import parse_sweep, run_robustness
 
     sweep = parse_sweep(args.sweep)
-    run_robustness(args.scenarios, sweep, args.seeds, args.controller, args.workers, args.out)
+    summary = run_robustness(args.scenarios, sweep, args.seeds, args.controller, args.workers, args.out)
+    for row in summary:
+        print("  ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
+    print(f"wrote {args.out}/robustness.csv, summary.csv and heat maps")
     return 0
 
 

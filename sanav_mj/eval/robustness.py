@@ -1,0 +1,145 @@
+"""``sanav-mj robustness``: sweep one or two mismatch keys over a grid with several seeds.
+
+Outputs in ``--out``: ``robustness.csv`` (one row per run, with the swept values),
+``summary.csv`` (one row per grid point: success rate, collision rate, min clearance, reasons)
+and heat maps ``success_rate.png``, ``collision_rate.png``, ``min_clearance.png``.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sanav_mj.eval.bench import CSV_COLUMNS, flatten, write_csv
+from sanav_mj.eval.campaign import Job, run_jobs
+from sanav_mj.sim.mismatch import Mismatch, MismatchError, mismatch_keys
+
+
+def parse_sweep(items: list[str]) -> list[tuple[str, list[float]]]:
+    """Parse ``["wheel_radius=0.9,1.0,1.1", "friction=0.3,1.0"]`` into keys with their values.
+
+    Raises:
+        MismatchError: malformed item, unknown key, repeated key, more than two keys, or a
+            value out of the key's range.
+    """
+    if not 1 <= len(items) <= 2:
+        raise MismatchError(f"--sweep: expected one or two KEY=V1,V2,... items, got {len(items)}")
+    keys = mismatch_keys()
+    out: list[tuple[str, list[float]]] = []
+    for item in items:
+        key, sep, raw = item.partition("=")
+        if not sep or not raw:
+            raise MismatchError(f"--sweep {item!r}: expected KEY=V1,V2,...")
+        if key not in keys:
+            raise MismatchError(f"--sweep {item!r}: unknown key {key!r}; expected one of {', '.join(keys)}")
+        if any(key == k for k, _ in out):
+            raise MismatchError(f"--sweep {item!r}: key {key!r} given twice")
+        try:
+            values = [float(v) for v in raw.split(",")]
+        except ValueError:
+            raise MismatchError(f"--sweep {item!r}: expected comma-separated numbers, got {raw!r}") from None
+        for v in values:
+            Mismatch(**{key: int(v) if key == "delay" and v == int(v) else v})  # validates range
+        out.append((key, values))
+    return out
+
+
+def _fmt(key: str, value: float) -> str:
+    return str(int(value)) if key == "delay" else repr(float(value))
+
+
+def run_robustness(
+    scenarios: list[str],
+    sweep: list[tuple[str, list[float]]],
+    seeds: int,
+    controller: str,
+    workers: int,
+    out: Path,
+    time_limit_s: float = 60.0,
+) -> list[dict[str, Any]]:
+    """Run the sweep and write CSVs and heat maps into ``out``.
+
+    Args:
+        scenarios: scenario paths/names.
+        sweep: one or two (key, values) pairs from :func:`parse_sweep`.
+        seeds: seeds 0..seeds-1 at every grid point and scenario.
+        controller: controller name.
+        workers: worker processes.
+        out: output folder (created).
+        time_limit_s: [s] simulated time limit of each run.
+
+    Returns:
+        One summary row per grid point.
+    """
+    from sanav_mj.eval.plots import plot_heatmap
+    from sanav_mj.scene import load_scenario
+
+    for name in scenarios:
+        load_scenario(name)
+    out.mkdir(parents=True, exist_ok=True)
+    (xk, xv), (yk, yv) = sweep[0], (sweep[1] if len(sweep) > 1 else ("", [math.nan]))
+    jobs = []
+    for yi, y in enumerate(yv):
+        for xi, x in enumerate(xv):
+            items = [f"{xk}={_fmt(xk, x)}"] + ([f"{yk}={_fmt(yk, y)}"] if yk else [])
+            for s in scenarios:
+                for k in range(seeds):
+                    jobs.append(Job(s, controller, k, tuple(items), time_limit_s, None,
+                                    ((xk, x),) + (((yk, y),) if yk else ()) + (("_cell", (yi, xi)),)))
+    docs = run_jobs(jobs, workers, desc="robustness")
+    rows = []
+    for d in docs:
+        r = flatten(d)
+        r[xk] = d[xk]
+        if yk:
+            r[yk] = d[yk]
+        r["_cell"] = d["_cell"]
+        rows.append(r)
+    write_csv([{k: v for k, v in r.items() if k != "_cell"} for r in rows], out / "robustness.csv",
+              columns=(xk,) + ((yk,) if yk else ()) + CSV_COLUMNS)
+
+    shape = (len(yv), len(xv))
+    success = np.zeros(shape)
+    collision = np.zeros(shape)
+    clearance = np.full(shape, np.inf)
+    count = np.zeros(shape)
+    for r in rows:
+        yi, xi = r["_cell"]
+        count[yi, xi] += 1
+        success[yi, xi] += bool(r["success"])
+        collision[yi, xi] += r["collisions"] > 0
+        if r["min_clearance_m"] is not None:
+            clearance[yi, xi] = min(clearance[yi, xi], r["min_clearance_m"])
+    success = 100 * success / np.maximum(count, 1)
+    collision = 100 * collision / np.maximum(count, 1)
+    summary = []
+    for yi, y in enumerate(yv):
+        for xi, x in enumerate(xv):
+            cell = [r for r in rows if tuple(r["_cell"]) == (yi, xi)]
+            reasons: dict[str, int] = {}
+            for r in cell:
+                reasons[r["reason"]] = reasons.get(r["reason"], 0) + 1
+            row = {xk: x}
+            if yk:
+                row[yk] = y
+            row.update(runs=int(count[yi, xi]), success_rate=float(success[yi, xi]),
+                       collision_rate=float(collision[yi, xi]), min_clearance_m=float(clearance[yi, xi]),
+                       reasons=", ".join(f"{k} {v}" for k, v in sorted(reasons.items())))
+            summary.append(row)
+    with open(out / "summary.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(summary[0]))
+        w.writeheader()
+        w.writerows(summary)
+    ylabels = [_fmt(yk, y) for y in yv] if yk else [""]
+    xlabels = [_fmt(xk, x) for x in xv]
+    for values, name, title in (
+        (success, "success_rate", f"{controller}: success rate [%]"),
+        (collision, "collision_rate", f"{controller}: collision rate [%]"),
+        (clearance, "min_clearance", f"{controller}: min clearance [m]"),
+    ):
+        plot_heatmap(values, xk, xlabels, yk, ylabels, title, out / f"{name}.png")
+    return summary
