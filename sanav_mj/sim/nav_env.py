@@ -1,0 +1,435 @@
+"""A gymnasium environment over the MuJoCo robot, for training the DQN baseline.
+
+Each episode drives the same MuJoCo differential-drive robot as the runner (through
+:class:`~sanav_mj.sim.plant.Plant`) in a *generated* cluttered map, never in one of the
+evaluation scenarios: :meth:`NavEnv.reset` draws a map seed from the training range
+``[map_seed_start, map_seed_start + n_maps)`` and a random start yaw (and, with
+probability 1/2, swaps the map's start and goal positions).
+
+- Observation: :func:`sanav_mj.control.dqn.build_observation` (the same function the DQN
+  controller uses): range rays from MuJoCo ray casts, goal distance and bearing in the robot
+  frame, measured (v, w); float32 in [-1, 1].
+- Action: an index into the discrete (v, w) table :class:`~sanav_mj.control.dqn.ActionSpec`,
+  held for ``dt`` (zero-order hold, as the runner does).
+- Reward per step: ``progress * (d_prev - d)`` (progress towards the goal [m]) ``+ time``
+  (a small negative constant) ``+ proximity * max(0, 1 - min_ray / proximity_m)`` (a
+  small penalty near obstacles); plus ``goal`` on reaching the goal (terminated) and
+  ``collision`` on any robot-obstacle contact or on leaving the workspace (terminated).
+- Truncation: after ``max_steps`` or when the distance to the goal has shrunk by less than
+  ``stuck_progress_m`` over ``stuck_window_s`` (the runner's ``stuck`` rule).
+
+``info`` at every step has ``reason`` (``"running"``, ``"goal"``, ``"collision"``,
+``"out_of_bounds"``, ``"timeout"``, ``"stuck"``) and, at the end of an episode,
+``is_success`` (read by stable-baselines3 for its success rate), plus ``map_seed``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict, deque
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import gymnasium as gym
+import numpy as np
+
+from sanav_mj.control.dqn import ActionSpec, ObservationSpec, build_observation
+from sanav_mj.scene import Scenario
+from sanav_mj.sim.plant import Plant
+
+#: Called with a map seed, returns a training scenario.
+MapFactory = Callable[[int], Scenario]
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Reward terms (dimensionless reward units).
+
+    Attributes:
+        progress: reward per metre of reduction of the distance to the goal.
+        goal: bonus on reaching the goal.
+        collision: added on contact or leaving the workspace (negative).
+        time: added every step (negative: favours short episodes).
+        proximity: weight of the near-obstacle penalty ``-proximity * max(0, 1 - r / proximity_m)``
+            with ``r`` the shortest ray (0 disables it).
+        proximity_m: [m] ray distance below which the proximity penalty starts.
+    """
+
+    progress: float = 1.0
+    goal: float = 10.0
+    collision: float = -10.0
+    time: float = -0.01
+    proximity: float = 0.05
+    proximity_m: float = 0.6
+
+    def __post_init__(self) -> None:
+        for name in ("progress", "goal", "collision", "time", "proximity", "proximity_m"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value)):
+                raise ValueError(f"RewardConfig.{name}: expected a finite number, got {value!r}")
+        if self.progress <= 0 or self.goal < 0:
+            raise ValueError(f"RewardConfig.progress/goal: expected progress > 0 and goal >= 0, got {self.progress}, {self.goal}")
+        if self.collision > 0 or self.time > 0 or self.proximity < 0:
+            raise ValueError("RewardConfig.collision/time: expected <= 0 and proximity >= 0")
+        if self.proximity_m <= 0:
+            raise ValueError(f"RewardConfig.proximity_m: expected > 0, got {self.proximity_m!r}")
+
+
+@dataclass(frozen=True)
+class NavEnvConfig:
+    """Environment settings.
+
+    Attributes:
+        dt: [s] control period (zero-order hold of each action).
+        max_steps: steps after which the episode is truncated (``timeout``).
+        goal_tolerance_m: [m] the goal is reached when the robot centre is this close.
+        stuck_window_s: [s] / stuck_progress_m: [m] truncate (``stuck``) when the distance
+            to the goal shrank by less than ``stuck_progress_m`` over ``stuck_window_s``.
+        map_seed_start: first training-map seed.
+        n_maps: number of training maps (seeds ``map_seed_start .. + n_maps - 1``).
+        cache_maps: how many built maps (scenario + plant) are kept in memory (LRU).
+        swap_start_goal: with probability 1/2 start at the map's goal and drive to its start.
+        obs: observation normalisation (shared with the controller).
+        actions: discrete action set (shared with the controller).
+        reward: reward terms.
+    """
+
+    dt: float = 0.1
+    max_steps: int = 400
+    goal_tolerance_m: float = 0.15
+    stuck_window_s: float = 8.0
+    stuck_progress_m: float = 0.05
+    map_seed_start: int = 100_000
+    n_maps: int = 2000
+    cache_maps: int = 64
+    swap_start_goal: bool = True
+    obs: ObservationSpec = field(default_factory=ObservationSpec)
+    actions: ActionSpec = field(default_factory=ActionSpec)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+
+    def __post_init__(self) -> None:
+        for name in ("dt", "goal_tolerance_m", "stuck_window_s"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"NavEnvConfig.{name}: expected a finite number > 0, got {value!r}")
+        for name in ("max_steps", "n_maps", "cache_maps"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"NavEnvConfig.{name}: expected an int >= 1, got {value!r}")
+        if not isinstance(self.map_seed_start, int) or self.map_seed_start < 0:
+            raise ValueError(f"NavEnvConfig.map_seed_start: expected an int >= 0, got {self.map_seed_start!r}")
+        if self.stuck_progress_m < 0:
+            raise ValueError(f"NavEnvConfig.stuck_progress_m: expected >= 0, got {self.stuck_progress_m!r}")
+
+
+def _default_map_factory(seed: int) -> Scenario:
+    from sanav_mj.generate import generate_scenario
+
+    return generate_scenario(seed)
+
+
+class NavEnv(gym.Env):
+    """Goal-reaching among obstacles with the MuJoCo robot (see the module docstring).
+
+    Args:
+        config: environment settings.
+        map_factory: ``f(seed) -> Scenario`` building a training map; default
+            :func:`sanav_mj.generate.generate_scenario`.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, config: NavEnvConfig = NavEnvConfig(), map_factory: MapFactory | None = None) -> None:
+        super().__init__()
+        self.config = config
+        self._factory = map_factory if map_factory is not None else _default_map_factory
+        self._table = config.actions.table()
+        self.action_space = gym.spaces.Discrete(config.actions.n)
+        self.observation_space = gym.spaces.Box(-1.0, 1.0, shape=(config.obs.size,), dtype=np.float32)
+        self._maps: OrderedDict[int, Plant] = OrderedDict()
+        self._plant: Plant | None = None
+        self._goal = np.zeros(2)
+        self._dist = 0.0
+        self._steps = 0
+        self._window = max(1, int(round(config.stuck_window_s / config.dt)))
+        self._hist: deque[float] = deque(maxlen=self._window + 1)
+        self._ranges = np.zeros(config.obs.n_rays)
+        self.map_seed = -1
+
+    # ------------------------------------------------------------------ maps
+
+    def _plant_for(self, seed: int) -> Plant:
+        plant = self._maps.get(seed)
+        if plant is None:
+            scenario = self._factory(seed)
+            self.config.actions.check_within(scenario.robot)
+            plant = Plant(scenario)
+            self._maps[seed] = plant
+            while len(self._maps) > self.config.cache_maps:
+                self._maps.popitem(last=False)
+        else:
+            self._maps.move_to_end(seed)
+        return plant
+
+    @property
+    def plant(self) -> Plant:
+        """The plant of the current episode (after :meth:`reset`)."""
+        if self._plant is None:
+            raise RuntimeError("NavEnv.plant: call reset() first")
+        return self._plant
+
+    @property
+    def goal(self) -> np.ndarray:
+        """(2,) [m] goal of the current episode."""
+        return self._goal.copy()
+
+    # ------------------------------------------------------------------ gym API
+
+    def _observe(self) -> np.ndarray:
+        p = self.plant
+        self._ranges = p.ray_ranges(self.config.obs.n_rays, self.config.obs.ray_range_m)
+        return build_observation(self.config.obs, self._ranges, p.pose(), p.body_velocity(), self._goal)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """Start an episode on a training map.
+
+        Args:
+            seed: seeds the environment's generator (map choice, start yaw, start/goal swap).
+            options: optional ``{"map_seed": int, "yaw": float, "swap": bool}`` to pin them.
+
+        Returns:
+            ``(observation, info)``.
+        """
+        super().reset(seed=seed)
+        cfg = self.config
+        options = options or {}
+        rng = self.np_random
+        map_seed = int(options.get("map_seed", cfg.map_seed_start + int(rng.integers(cfg.n_maps))))
+        yaw = float(options.get("yaw", rng.uniform(-math.pi, math.pi)))
+        swap = bool(options.get("swap", cfg.swap_start_goal and bool(rng.integers(2))))
+        self.map_seed = map_seed
+        self._plant = self._plant_for(map_seed)
+        sc = self._plant.scenario
+        if swap:
+            start_xy, goal = np.asarray(sc.goal, dtype=float), np.asarray(sc.start[:2], dtype=float)
+        else:
+            start_xy, goal = np.asarray(sc.start[:2], dtype=float), np.asarray(sc.goal, dtype=float)
+        self._goal = goal.copy()
+        self._plant.reset(np.array([start_xy[0], start_xy[1], yaw]))
+        self._steps = 0
+        self._dist = float(np.hypot(*(start_xy - goal)))
+        self._hist.clear()
+        return self._observe(), {"reason": "running", "map_seed": map_seed}
+
+    def _out_of_bounds(self, pose: np.ndarray) -> bool:
+        xmin, ymin, xmax, ymax = self.plant.scenario.bounds
+        r = self.plant.robot.footprint_radius
+        return not (xmin + r <= pose[0] <= xmax - r and ymin + r <= pose[1] <= ymax - r)
+
+    def step(self, action):
+        """Apply action ``action`` (an index into the action table) for ``dt``.
+
+        Returns:
+            ``(observation, reward, terminated, truncated, info)``.
+        """
+        if not self.action_space.contains(action):
+            raise ValueError(f"action: expected an int in [0, {self.action_space.n}), got {action!r}")
+        cfg, rw = self.config, self.config.reward
+        p = self.plant
+        v, w = self._table[int(action)]
+        p.set_wheel_command(v, w)
+        contacts = p.advance(cfg.dt)
+        self._steps += 1
+        pose = p.pose()
+        dist = float(np.hypot(*(pose[:2] - self._goal)))
+        obs = self._observe()
+        reward = rw.progress * (self._dist - dist) + rw.time
+        if rw.proximity > 0:
+            reward -= rw.proximity * max(0.0, 1.0 - float(self._ranges.min()) / rw.proximity_m)
+        self._dist = dist
+        terminated = truncated = False
+        reason = "running"
+        if contacts > 0 or p.robot_obstacle_contacts() > 0:
+            reward += rw.collision
+            terminated, reason = True, "collision"
+        elif self._out_of_bounds(pose):
+            reward += rw.collision
+            terminated, reason = True, "out_of_bounds"
+        elif dist <= cfg.goal_tolerance_m:
+            reward += rw.goal
+            terminated, reason = True, "goal"
+        else:
+            self._hist.append(dist)
+            if len(self._hist) > self._window and self._hist[0] - dist < cfg.stuck_progress_m:
+                truncated, reason = True, "stuck"
+            elif self._steps >= cfg.max_steps:
+                truncated, reason = True, "timeout"
+        info: dict[str, Any] = {"reason": reason, "map_seed": self.map_seed}
+        if terminated or truncated:
+            info["is_success"] = reason == "goal"
+        return obs, float(reward), terminated, truncated, info
+
+
+# ---------------------------------------------------------------------- training
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """stable-baselines3 DQN hyper-parameters (MLP Q-network).
+
+    Attributes:
+        total_steps: environment steps of training.
+        learning_rate: Adam step size.
+        buffer_size: replay-buffer capacity [transitions].
+        learning_starts: steps of pure exploration before the first gradient step.
+        batch_size: transitions per gradient step.
+        gamma: discount factor per step.
+        train_freq: environment steps between gradient updates.
+        gradient_steps: gradient steps per update.
+        target_update_interval: environment steps between target-network copies.
+        exploration_fraction: fraction of ``total_steps`` over which epsilon decays linearly.
+        exploration_initial_eps, exploration_final_eps: epsilon at the start / end of the decay.
+        max_grad_norm: gradient-norm clip.
+        net_arch: hidden layer widths.
+        torch_threads: torch intra-op threads (1 keeps runs reproducible and the machine shared).
+    """
+
+    total_steps: int = 300_000
+    learning_rate: float = 5e-4
+    buffer_size: int = 200_000
+    learning_starts: int = 5_000
+    batch_size: int = 128
+    gamma: float = 0.99
+    train_freq: int = 4
+    gradient_steps: int = 1
+    target_update_interval: int = 2_000
+    exploration_fraction: float = 0.3
+    exploration_initial_eps: float = 1.0
+    exploration_final_eps: float = 0.05
+    max_grad_norm: float = 10.0
+    net_arch: tuple[int, ...] = (128, 128)
+    torch_threads: int = 1
+
+    def __post_init__(self) -> None:
+        for name in ("total_steps", "buffer_size", "batch_size", "train_freq", "gradient_steps",
+                     "target_update_interval", "torch_threads"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"TrainConfig.{name}: expected an int >= 1, got {value!r}")
+        if not isinstance(self.learning_starts, int) or self.learning_starts < 0:
+            raise ValueError(f"TrainConfig.learning_starts: expected an int >= 0, got {self.learning_starts!r}")
+        if not (isinstance(self.learning_rate, (int, float)) and 0 < self.learning_rate < 1):
+            raise ValueError(f"TrainConfig.learning_rate: expected 0 < lr < 1, got {self.learning_rate!r}")
+        if not (0 < self.gamma <= 1):
+            raise ValueError(f"TrainConfig.gamma: expected 0 < gamma <= 1, got {self.gamma!r}")
+        for name in ("exploration_fraction", "exploration_initial_eps", "exploration_final_eps"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and 0 <= value <= 1):
+                raise ValueError(f"TrainConfig.{name}: expected a number in [0, 1], got {value!r}")
+        if not (self.max_grad_norm > 0):
+            raise ValueError(f"TrainConfig.max_grad_norm: expected > 0, got {self.max_grad_norm!r}")
+        if not self.net_arch or not all(isinstance(n, int) and n >= 1 for n in self.net_arch):
+            raise ValueError(f"TrainConfig.net_arch: expected a non-empty tuple of ints >= 1, got {self.net_arch!r}")
+
+
+@dataclass
+class TrainingLog:
+    """What happened during training.
+
+    Attributes:
+        episodes: per finished episode ``(end_step, return, length, success, reason, map_seed)``.
+        losses: per gradient update ``(step, mean TD (Huber) loss of that update)``.
+        wall_time_s: [s] wall time of ``learn``.
+    """
+
+    episodes: list[tuple[int, float, int, bool, str, int]] = field(default_factory=list)
+    losses: list[tuple[int, float]] = field(default_factory=list)
+    wall_time_s: float = 0.0
+
+    def loss_array(self) -> np.ndarray:
+        """(U, 2) [step, loss] of every gradient update."""
+        return np.asarray(self.losses, dtype=float).reshape(-1, 2)
+
+    def episode_array(self) -> np.ndarray:
+        """(E, 4) [end_step, return, length, success] of every finished episode."""
+        return np.asarray([e[:4] for e in self.episodes], dtype=float).reshape(-1, 4)
+
+
+def train_dqn(
+    env: NavEnv,
+    config: TrainConfig,
+    seed: int,
+    progress: Callable[[int, TrainingLog], None] | None = None,
+):
+    """Train a stable-baselines3 DQN (MLP) on ``env``; needs the ``rl`` extra (torch, SB3).
+
+    Deterministic for a given seed, config, environment and library versions on one machine
+    (torch on CPU with ``torch_threads`` threads).
+
+    Args:
+        env: the training environment (its maps are generated, never the evaluation ones).
+        config: hyper-parameters.
+        seed: seeds SB3 (network init, exploration, replay sampling) and the environment.
+        progress: optional ``f(step, log)`` called every 1000 environment steps (the edge
+            hook for a progress bar; this function itself never prints).
+
+    Returns:
+        ``(model, log)``: the trained SB3 ``DQN`` model and the :class:`TrainingLog`.
+    """
+    import time
+
+    import torch
+    from stable_baselines3 import DQN
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    torch.set_num_threads(config.torch_threads)
+    log = TrainingLog()
+
+    class _LoggedDQN(DQN):
+        def train(self, gradient_steps: int, batch_size: int = 100) -> None:
+            super().train(gradient_steps, batch_size)
+            log.losses.append((int(self.num_timesteps), float(self.logger.name_to_value["train/loss"])))
+
+    class _Episodes(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self._ret = 0.0
+            self._len = 0
+
+        def _on_step(self) -> bool:
+            self._ret += float(self.locals["rewards"][0])
+            self._len += 1
+            if self.locals["dones"][0]:
+                info = self.locals["infos"][0]
+                log.episodes.append((int(self.num_timesteps), self._ret, self._len,
+                                     bool(info.get("is_success", False)), str(info.get("reason", "")),
+                                     int(info.get("map_seed", -1))))
+                self._ret, self._len = 0.0, 0
+            if progress is not None and self.num_timesteps % 1000 == 0:
+                progress(int(self.num_timesteps), log)
+            return True
+
+    model = _LoggedDQN(
+        "MlpPolicy",
+        env,
+        learning_rate=config.learning_rate,
+        buffer_size=config.buffer_size,
+        learning_starts=config.learning_starts,
+        batch_size=config.batch_size,
+        gamma=config.gamma,
+        train_freq=config.train_freq,
+        gradient_steps=config.gradient_steps,
+        target_update_interval=config.target_update_interval,
+        exploration_fraction=config.exploration_fraction,
+        exploration_initial_eps=config.exploration_initial_eps,
+        exploration_final_eps=config.exploration_final_eps,
+        max_grad_norm=config.max_grad_norm,
+        policy_kwargs={"net_arch": list(config.net_arch)},
+        seed=seed,
+        device="cpu",
+        verbose=0,
+    )
+    t0 = time.perf_counter()
+    model.learn(total_timesteps=config.total_steps, callback=_Episodes())
+    log.wall_time_s = time.perf_counter() - t0
+    return model, log
