@@ -492,7 +492,7 @@ def _obstacle(model: mujoco.MjModel, data: mujoco.MjData, g: int, floor_z: float
         k = int(np.argmax(vertical))
         if vertical[k] < 1.0 - _VERTICAL_TOL:
             raise ScenarioError(f"box {name!r} is tilted: one of its axes must be vertical (rotate about z only)")
-        i, j = (k + 1) % 3, (k + 2) % 3
+        i, j = (a for a in range(3) if a != k)  # the two horizontal axes; yaw from the first
         yaw = math.atan2(rot[1, i], rot[0, i])
         return Obstacle(name, "box", center, yaw, np.array([size[i], size[j]], dtype=float),
                         float(data.geom_xpos[g][2] + size[k] - floor_z), g)

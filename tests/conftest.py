@@ -1,0 +1,46 @@
+"""Shared fixtures: scenario files written from scratch into a temporary folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from sanav_mj.resources import robot_model_path
+
+#: a 12 m x 8 m floor centred at (4, 0): workspace x [-2, 10], y [-4, 4]
+FLOOR = '<geom name="floor" type="plane" pos="4 0 0" size="6 4 0.1"/>'
+
+
+def scenario_xml(world: str = "", start: str | None = "0 0 0", goal: str | None = "4 0",
+                 include: str | None = None, floor: str = FLOOR, extra: str = "") -> str:
+    """MJCF text of a scenario: robot include, start/goal numerics, ``floor`` + ``world`` geoms.
+
+    ``include`` defaults to the absolute path of the packaged robot; ``start``/``goal`` None
+    leave the numeric out; ``extra`` goes after </worldbody> (e.g. an <asset> block).
+    """
+    include = str(robot_model_path()) if include is None else include
+    numerics = "".join(
+        f'<numeric name="{n}" data="{v}"/>' for n, v in (("start", start), ("goal", goal)) if v is not None
+    )
+    custom = f"<custom>{numerics}</custom>" if numerics else ""
+    return (f'<mujoco model="t">\n  <include file="{include}"/>\n  {custom}\n'
+            f"  <worldbody>\n    {floor}\n{world}\n  </worldbody>\n{extra}\n</mujoco>\n")
+
+
+@pytest.fixture
+def write_scenario(tmp_path: Path):
+    """Factory ``write_scenario(world="", name="s", **kw) -> Path`` (keywords of :func:`scenario_xml`)."""
+
+    def write(world: str = "", name: str = "s", **kw) -> Path:
+        path = tmp_path / f"{name}.xml"
+        path.write_text(scenario_xml(world, **kw))
+        return path
+
+    return write
+
+
+@pytest.fixture(scope="session")
+def make_scenario_xml():
+    """:func:`scenario_xml` itself, for module-scoped fixtures that write their own files."""
+    return scenario_xml
