@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -41,6 +42,9 @@ class Plan:
         path: (M, 2) [m] uniformly arc-length-interpolated waypoint polyline (eq. 5-6).
         smoothed: (S, 2) [m] dense samples of the smoothed B-spline (eq. 7).
         reference: the time-parametrised reference, or None when ``ok`` is False.
+        info: diagnostics (plain numbers and strings): e.g. the smoothing weight finally
+            used, how often it was halved, the length of path replaced by the interpolated
+            polyline, path length and duration, per-stage wall times.
     """
 
     ok: bool
@@ -51,3 +55,4 @@ class Plan:
     path: np.ndarray
     smoothed: np.ndarray
     reference: Reference | None
+    info: dict[str, Any] = field(default_factory=dict)
