@@ -262,8 +262,8 @@ def robot_params(model: mujoco.MjModel) -> RobotParams:
             f"robot model: numeric {ROBOT_LIMITS!r} needs 3 values (a_max alpha_max w_cap), got {size}"
         )
     a_max, alpha_max, w_cap = (float(v) for v in model.numeric_data[adr : adr + 3])
-    values = dict(wheel_radius=wheel_radius, track=track, footprint_radius=footprint,
-                  wheel_speed_max=wheel_speed_max, a_max=a_max, alpha_max=alpha_max, w_cap=w_cap)
+    values = {"wheel_radius": wheel_radius, "track": track, "footprint_radius": footprint,
+              "wheel_speed_max": wheel_speed_max, "a_max": a_max, "alpha_max": alpha_max, "w_cap": w_cap}
     for key, val in values.items():
         if not (math.isfinite(val) and val > 0):
             raise ScenarioError(f"robot model: {key} must be a finite number > 0, got {val}")
@@ -287,7 +287,10 @@ def floor_geom_id(model: mujoco.MjModel) -> int:
         ScenarioError: no such plane, or more than one.
     """
     static = _static_geoms(model)
-    planes = [g for g in static if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE]
+    planes = [
+        g for g in static
+        if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE and (model.geom_contype[g] or model.geom_conaffinity[g])
+    ]
     if not planes:
         raise ScenarioError('no floor plane: add <geom name="floor" type="plane" pos="x y 0" size="hx hy 0.1"/>')
     if len(planes) > 1:

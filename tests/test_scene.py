@@ -236,6 +236,7 @@ def test_file_from_scratch_loads(write_scenario):
         '<geom name="lying" type="box" pos="6 2 0.1" size="0.5 0.1 0.3" euler="90 0 0"/>'
         '<geom type="box" pos="6 -2 0.2" size="0.2 0.2 0.2"/>'
         '<geom name="decor" type="sphere" pos="8 3 0" size="0.1" contype="0" conaffinity="0"/>'
+        '<geom name="mat" type="plane" pos="1 1 0.001" size="1 1 0.1" contype="0" conaffinity="0"/>'
         '<body name="group" pos="0 -3 0" euler="0 0 90"><geom name="in_body" type="box" pos="1 0 0.2" size="0.3 0.1 0.2"/></body>',
         start="0 0 0.5", goal="8 0",
     )
@@ -243,7 +244,7 @@ def test_file_from_scratch_loads(write_scenario):
     obs = {o.name: o for o in sc.obstacles}
     unnamed = [o for o in sc.obstacles if o.name.startswith("geom_")]
     assert len(unnamed) == 1 and unnamed[0].name == f"geom_{unnamed[0].geom_id}"
-    assert sorted(obs) == sorted(["wall", "post", "pill", "lying", unnamed[0].name, "in_body"])  # not "decor"
+    assert sorted(obs) == sorted(["wall", "post", "pill", "lying", unnamed[0].name, "in_body"])  # not "decor", "mat"
     for o in sc.obstacles:
         assert sc.model.geom(o.geom_id).name in (o.name, "")
     assert obs["wall"].yaw == pytest.approx(math.radians(30))

@@ -22,6 +22,7 @@ from sanav_mj.scene import (
     RobotParams,
     Scenario,
     robot_geom_ids,
+    robot_params,
     robot_qpos,
 )
 
@@ -75,6 +76,9 @@ class Plant:
         self._lidar = m.site(LIDAR_SITE).id
 
         self._robot_geoms = robot_geom_ids(m)
+        # footprint of the SIMULATED robot (a mismatched copy may be larger than nominal),
+        # for the lower bounds that decide when exact contact / distance checks are needed
+        self._reach_radius = max(self.robot.footprint_radius, robot_params(m).footprint_radius)
         self._obstacle_geoms = np.array([o.geom_id for o in scenario.obstacles], dtype=int)
         self._is_robot = np.zeros(m.ngeom, dtype=bool)
         self._is_robot[self._robot_geoms] = True
@@ -191,8 +195,8 @@ class Plant:
         """Step the physics for ``round(duration_s / timestep)`` steps (at least one) holding the command.
 
         When the robot is close enough to an obstacle for a contact to be possible within
-        the interval (judged from the 2-D footprint clearance, the current speed and a 2 g
-        acceleration bound), the steps run one at a time and robot-obstacle contacts are
+        the interval (judged from the 2-D footprint clearance of the simulated robot, the
+        current speed and a 2 g acceleration bound), the steps run one at a time and robot-obstacle contacts are
         checked after each, so a brief touch between control steps is not missed (see
         :meth:`robot_obstacle_contacts`); otherwise they run in one ``mj_step`` call.
 
@@ -204,12 +208,13 @@ class Plant:
         """
         if not (math.isfinite(duration_s) and duration_s > 0):
             raise ValueError(f"duration_s must be a finite number > 0 [s], got {duration_s!r}")
-        n = max(1, int(round(duration_s / self.timestep)))
+        n = max(1, math.floor(duration_s / self.timestep + 0.5))  # nearest whole step
         m, d = self.model, self.data
         speed = float(np.linalg.norm(d.qvel[self._vadr : self._vadr + 2]))
         reach = (speed + _ACCEL_BOUND * n * self.timestep) * n * self.timestep + _CONTACT_SLACK
         worst = 0
-        if len(self._obstacle_geoms) == 0 or self.footprint_clearance() > reach:
+        gap = math.inf if len(self._obs_c) == 0 else float(self._obstacle_distances_2d().min()) - self._reach_radius
+        if gap > reach:
             mujoco.mj_step(m, d, nstep=n)
         else:
             for _ in range(n):
@@ -261,7 +266,7 @@ class Plant:
         if len(self._obs_c) == 0:
             return best
         # lower bounds on each obstacle's distance (slack for a slightly tilted robot)
-        lower = self._obstacle_distances_2d() - self.robot.footprint_radius - _CONTACT_SLACK
+        lower = self._obstacle_distances_2d() - self._reach_radius - _CONTACT_SLACK
         for k in np.argsort(lower):
             if lower[k] > best:
                 break
