@@ -149,7 +149,9 @@ def mismatched_model(scenario, mismatch: Mismatch):
     """
     import mujoco
 
-    spec = mujoco.MjSpec.from_file(str(scenario.path))
+    from sanav_mj.scene import floor_geom_id, scenario_spec
+
+    spec = scenario_spec(scenario)
     m = mismatch
     for name in _WHEELS:
         geom = spec.geom(name)
@@ -178,7 +180,14 @@ def mismatched_model(scenario, mismatch: Mismatch):
         if m.torque_limit != 1.0:
             act.forcerange = [v * m.torque_limit for v in act.forcerange]
     if m.friction is not None:
-        floor = spec.geom("floor")
+        name = scenario.model.geom(floor_geom_id(scenario.model)).name
+        if name:
+            floor = spec.geom(name)
+        else:  # an unnamed floor: the loader guarantees it is the only colliding plane
+            floor = next(
+                g for g in spec.worldbody.find_all(mujoco.mjtObj.mjOBJ_GEOM)
+                if g.type == mujoco.mjtGeom.mjGEOM_PLANE and (g.contype or g.conaffinity)
+            )
         fr = list(floor.friction)
         fr[0] = m.friction
         floor.friction = fr
