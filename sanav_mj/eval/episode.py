@@ -37,6 +37,7 @@ class Prepared:
         areas: merged safe areas and their graph.
         plan: planned corridor and reference from the scenario start to its goal.
         timing_ms: [ms] stage times: rasterise, quadtree, merge, graph, plan, total.
+        safe_map: the whole mapping-stage result (grid, leaves, cell boxes, areas, timing).
     """
 
     scenario: Scenario
@@ -45,6 +46,7 @@ class Prepared:
     areas: SafeAreas
     plan: Plan
     timing_ms: dict[str, float] = field(default_factory=dict)
+    safe_map: Any = None
 
 
 @dataclass
@@ -72,45 +74,32 @@ def prepare(
         merge: merge rule of the safe areas (``"paper"`` or ``"maximal"``).
         start: (3,) [m, m, rad] start pose to plan from (default: the scenario's).
     """
-    from sanav_mj.mapping import build_map
+    from sanav_mj.mapping import MapConfig, build_map
     from sanav_mj.planning import plan as make_plan
 
     scenario = spec if isinstance(spec, Scenario) else load_scenario(spec)
     inflation = scenario.robot.footprint_radius + DEFAULT_MARGIN_M
-    m = build_map(scenario.obstacles, scenario.bounds, resolution=resolution, inflation=inflation, merge=merge)
+    m = build_map(scenario.obstacles, scenario.bounds, inflation, MapConfig(resolution=resolution, merge=merge))
     t0 = time.perf_counter()
     pose = scenario.start if start is None else np.asarray(start, dtype=float)
     plan = make_plan(m.areas, pose, scenario.goal, scenario.robot)
     timing = dict(m.timing_ms)
     timing["plan"] = (time.perf_counter() - t0) * 1e3
     timing["total"] = timing.get("total", 0.0) + timing["plan"]
-    return Prepared(scenario, m.grid, m.leaves, m.areas, plan, timing)
+    return Prepared(scenario, m.grid, m.leaves, m.areas, plan, timing, m)
 
 
 def areas_document(prep: Prepared) -> dict[str, Any]:
     """The ``areas --json`` document of the design contract."""
-    g = prep.grid
-    rects = np.asarray(prep.areas.rects, dtype=float)
-    ref = prep.plan.reference
-    return {
-        "scenario": prep.scenario.name,
-        "grid": {
-            "resolution": float(g.resolution),
-            "origin": [float(v) for v in g.origin],
-            "shape": [int(v) for v in g.shape],
-            "inflation": float(g.inflation),
-        },
-        "leaves": {"free": int(prep.leaves.n_free), "occupied": int(prep.leaves.n_occupied)},
-        "rects": rects.round(6).tolist(),
-        "edges": [
-            [int(i), int(j), round(float(w), 6)]
-            for (i, j), w in zip(np.asarray(prep.areas.edges).reshape(-1, 2), prep.areas.weights)
-        ],
-        "corridor": [int(i) for i in prep.plan.corridor],
-        "reference": [] if ref is None else np.asarray(ref.states, dtype=float).round(6).tolist(),
-        "plan": {"ok": bool(prep.plan.ok), "reason": prep.plan.reason},
-        "timing_ms": {k: float(v) for k, v in prep.timing_ms.items()},
-    }
+    from sanav_mj.planning import plan_document
+
+    plan = plan_document(prep.plan)
+    doc = {"scenario": prep.scenario.name, **prep.safe_map.to_json()}
+    doc["corridor"] = plan.pop("corridor")
+    doc["reference"] = plan.pop("reference")
+    doc["plan"] = plan
+    doc["timing_ms"] = {k: float(v) for k, v in prep.timing_ms.items()}
+    return doc
 
 
 def initial_pose(scenario: Scenario, seed: int, yaw: float | None) -> np.ndarray:
@@ -211,7 +200,7 @@ def _replan(prep: Prepared, start: np.ndarray) -> Prepared:
     plan = make_plan(prep.areas, start, prep.scenario.goal, prep.scenario.robot)
     timing = dict(prep.timing_ms)
     timing["plan"] = (time.perf_counter() - t0) * 1e3
-    return Prepared(prep.scenario, prep.grid, prep.leaves, prep.areas, plan, timing)
+    return Prepared(prep.scenario, prep.grid, prep.leaves, prep.areas, plan, timing, prep.safe_map)
 
 
 def _no_path_episode(plant, start: np.ndarray) -> Episode:
