@@ -1,0 +1,223 @@
+"""Tests of sanav_mj.eval.plots: each figure is a non-empty PNG of the expected pixel size,
+and inconsistent input is a clear error."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from sanav_mj.eval.episode import Prepared, RunOutcome
+from sanav_mj.eval.plots import plot_areas, plot_heatmap, plot_run, plot_success_bars
+from sanav_mj.mapping.occupancy import OccupancyGrid
+from sanav_mj.mapping.quadtree import QuadtreeLeaves
+from sanav_mj.mapping.safe_areas import SafeAreas
+from sanav_mj.planning.reference import Plan, Reference
+from sanav_mj.resources import robot_model_path
+from sanav_mj.scene import Obstacle, RobotParams, Scenario
+from sanav_mj.sim.runner import Episode, EpisodeTrace
+
+
+def png_size(path: Path) -> tuple[int, int]:
+    """(width, height) from the PNG header; fails on anything that is not a PNG."""
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n", "not a PNG"
+    assert data[12:16] == b"IHDR"
+    return struct.unpack(">II", data[16:24])
+
+
+def png_pixels(path: Path) -> np.ndarray:
+    import matplotlib.image
+
+    return matplotlib.image.imread(path)
+
+
+def assert_png(path: Path, size: tuple[int, int]) -> None:
+    assert path.is_file() and path.stat().st_size > 5000
+    assert png_size(path) == size
+    img = png_pixels(path)
+    assert img.std() > 0.01, "blank image"
+
+
+@pytest.fixture(scope="module")
+def prep() -> Prepared:
+    model = mujoco.MjModel.from_xml_path(str(robot_model_path()))
+    robot = RobotParams(0.1, 0.38, 0.33, 20.0, 2.0, 3.0, 1.5, 4.0)
+    obstacles = (
+        Obstacle("wall", "box", np.array([2.0, 0.0]), 0.3, np.array([0.1, 0.8]), 0.5, 1),
+        Obstacle("post", "capsule", np.array([1.0, 1.2]), 0.0, np.array([0.2, 0.2]), 0.5, 2),
+    )
+    bounds = np.array([-1.0, -2.0, 5.0, 2.0])
+    sc = Scenario("fixture", Path("fixture.xml"), model, obstacles, np.zeros(3), np.array([4.0, 0.0]), bounds, robot)
+    occ = np.zeros((8, 12), dtype=bool)
+    occ[2:6, 5:7] = True
+    grid = OccupancyGrid(occ, 0.5, np.array([-1.0, -2.0]), 0.38, bounds)
+    boxes = np.array([[0, 0, 4, 4], [0, 4, 4, 8], [0, 8, 4, 12], [4, 0, 8, 4], [4, 4, 8, 8], [4, 8, 8, 12]])
+    leaves = QuadtreeLeaves(boxes, np.array([True, False, True, True, False, True]), np.ones(6, dtype=np.int64))
+    rects = np.array([[-1, -2, 5, -1], [-1, -1, 1.5, 2], [2.5, -1, 5, 2]], dtype=float)
+    areas = SafeAreas(rects, np.array([[0, 1], [0, 2]]), np.array([2.0, 2.5]), np.zeros((2, 2, 2)))
+    wp = np.array([[0.0, 0.0], [1.0, -1.0], [3.0, -1.0], [4.0, 0.0]])
+    s = np.linspace(0.0, 1.0, 21)
+    states = np.column_stack((4.0 * s, -0.8 * np.sin(np.pi * s), np.zeros(21)))
+    ref = Reference(0.1, states, np.zeros((21, 2)), np.zeros(21, dtype=int))
+    plan = Plan(True, "ok", np.array([1, 0, 2]), np.array([4.0, 0.0]), wp, wp, states[:, :2], ref)
+    return Prepared(sc, grid, leaves, areas, plan, {"total": 1.0})
+
+
+def make_trace(n: int = 25) -> EpisodeTrace:
+    tr = EpisodeTrace()
+    for k in range(n):
+        pose = np.array([4.0 * k / n, -0.8 * np.sin(np.pi * k / n), -0.5 + 0.05 * k])
+        tr.t.append(0.1 * k)
+        tr.pose.append(pose)
+        tr.measured.append(pose)
+        tr.cmd.append((0.6, 0.2 - 0.01 * k))
+        tr.applied.append((0.6, 0.2))
+        tr.velocity.append(np.array([0.5 + 0.01 * k, 0.15]))
+        tr.wheel_cmd.append(np.array([5.0, 6.0]))
+        tr.wheel_speed.append(np.array([5.0, 6.0]))
+        tr.solve_ms.append(2.0)
+        tr.pipeline_ms.append(2.5)
+        tr.status.append("ok")
+        tr.ok.append(True)
+        tr.clearance.append(0.4)
+        tr.contacts.append(1 if k == n - 1 else 0)
+        tr.predicted.append(None)
+        tr.rect_ids.append(None)
+        tr.margins.append(None)
+    return tr
+
+
+def outcome_of(prep: Prepared, tr: EpisodeTrace) -> RunOutcome:
+    ep = Episode(False, "collision", len(tr), 0.1 * len(tr), 1, 0, np.array([4.0, 0.0, 0.7]), tr, 0.3)
+    doc = {"seed": 3, "path_length_m": 4.8, "min_clearance_m": 0.0}
+    return RunOutcome(prep, "sa-mpc", np.array([0.0, 0.0, -0.5]), ep, doc)
+
+
+# ---------------------------------------------------------------------------- plot_areas
+def test_plot_areas_png(prep, tmp_path):
+    out = plot_areas(prep, tmp_path / "sub" / "areas.png")
+    assert out == tmp_path / "sub" / "areas.png"
+    assert_png(out, (1500, 900))
+
+
+def test_plot_areas_dpi_scales_the_image(prep, tmp_path):
+    assert_png(plot_areas(prep, tmp_path / "a.png", dpi=50), (750, 450))
+
+
+def test_plot_areas_rejects_inconsistent_leaves(prep, tmp_path):
+    bad = Prepared(prep.scenario, prep.grid, QuadtreeLeaves(prep.leaves.boxes, np.ones(4, dtype=bool),
+                                                            prep.leaves.depth), prep.areas, prep.plan)
+    with pytest.raises(ValueError, match="leaves: boxes"):
+        plot_areas(bad, tmp_path / "bad.png")
+    assert not (tmp_path / "bad.png").exists()
+
+
+def test_plot_areas_rejects_out_of_range_corridor(prep, tmp_path):
+    p = prep.plan
+    plan = Plan(True, "ok", np.array([0, 7]), p.goal, p.waypoints, p.path, p.smoothed, p.reference)
+    bad = Prepared(prep.scenario, prep.grid, prep.leaves, prep.areas, plan)
+    with pytest.raises(ValueError, match="plan.corridor"):
+        plot_areas(bad, tmp_path / "bad.png")
+
+
+def test_plot_areas_without_a_plan(prep, tmp_path):
+    empty = np.zeros((0, 2))
+    plan = Plan(False, "no_path", np.zeros(0, dtype=int), np.array([4.0, 0.0]), empty, empty, empty, None)
+    p = Prepared(prep.scenario, prep.grid, prep.leaves, prep.areas, plan)
+    assert_png(plot_areas(p, tmp_path / "noplan.png"), (1500, 900))
+
+
+# ---------------------------------------------------------------------------- plot_run
+def test_plot_run_png(prep, tmp_path):
+    assert_png(plot_run(outcome_of(prep, make_trace()), tmp_path / "run.png"), (1500, 750))
+
+
+def test_plot_run_of_an_empty_episode(prep, tmp_path):
+    """A no_path run has no steps; the figure still shows the map, start and goal."""
+    assert_png(plot_run(outcome_of(prep, EpisodeTrace()), tmp_path / "empty.png"), (1500, 750))
+
+
+def test_plot_run_rejects_a_ragged_trace(prep, tmp_path):
+    tr = make_trace()
+    tr.cmd.pop()
+    with pytest.raises(ValueError, match="equal lengths"):
+        plot_run(outcome_of(prep, tr), tmp_path / "bad.png")
+
+
+def test_plot_run_rejects_bad_footprint_count(prep, tmp_path):
+    with pytest.raises(ValueError, match="n_footprints"):
+        plot_run(outcome_of(prep, make_trace()), tmp_path / "bad.png", n_footprints=-1)
+
+
+# ---------------------------------------------------------------------------- plot_success_bars
+ROWS = [
+    {"scenario": s, "controller": c, "success_rate": r}
+    for s, rs in (("single", (100, 90, 80, 60)), ("u_shape", (100, 30, 20, 40)), ("complex", (90, 10, 0, 20)))
+    for c, r in zip(("sa-mpc", "mpc", "dwa", "dqn"), rs)
+]
+
+
+def test_plot_success_bars_png(tmp_path):
+    assert_png(plot_success_bars(ROWS, tmp_path / "bars.png"), (1200, 600))
+
+
+def test_plot_success_bars_with_a_missing_pair(tmp_path):
+    assert_png(plot_success_bars(ROWS[:-1], tmp_path / "gap.png"), (1200, 600))
+
+
+@pytest.mark.parametrize(
+    "rows, match",
+    [
+        ([], "at least one"),
+        ([{"scenario": "a", "controller": "b"}], "missing key 'success_rate'"),
+        ([{"scenario": "a", "controller": "b", "success_rate": 1.5e2}], r"\[0, 100\]"),
+        ([{"scenario": "a", "controller": "b", "success_rate": float("nan")}], r"\[0, 100\]"),
+        ([{"scenario": "a", "controller": "b", "success_rate": 50}] * 2, "duplicate pair"),
+    ],
+)
+def test_plot_success_bars_rejects_bad_rows(rows, match, tmp_path):
+    with pytest.raises(ValueError, match=match):
+        plot_success_bars(rows, tmp_path / "bad.png")
+
+
+# ---------------------------------------------------------------------------- plot_heatmap
+def test_plot_heatmap_2d_png(tmp_path):
+    vals = np.array([[100.0, 80.0, 40.0], [90.0, np.nan, 20.0]])
+    out = plot_heatmap(vals, "wheel_radius", ["0.9", "1.0", "1.1"], "delay", ["0", "2"], "sa-mpc: success rate [%]",
+                       tmp_path / "h.png")
+    assert_png(out, (900, 700))
+
+
+def test_plot_heatmap_1d_png(tmp_path):
+    """The robustness runner's 1-D call: y_key "" with a single placeholder label."""
+    vals = np.array([[0.12, 0.08, np.inf]])
+    out = plot_heatmap(vals, "friction", ["0.3", "0.6", "1.0"], "", [""], "sa-mpc: min clearance [m]",
+                       tmp_path / "l.png")
+    assert_png(out, (900, 500))
+
+
+def test_plot_heatmap_1d_accepts_flat_values(tmp_path):
+    assert_png(plot_heatmap([1.0, 2.0], "k", [1, 2], None, None, "t", tmp_path / "f.png"), (900, 500))
+
+
+@pytest.mark.parametrize(
+    "vals, y_key, y_values, match",
+    [
+        (np.zeros((3, 2)), "delay", ["0", "2"], r"expected shape .* = \(2, 3\), got \(3, 2\)"),
+        (np.zeros((2, 3)), "delay", [], "y_values"),
+        (np.zeros(4), "", [""], "1-D sweep"),
+        (np.zeros((2, 3)), "", [""], "1-D sweep"),
+    ],
+)
+def test_plot_heatmap_rejects_mismatched_shapes(vals, y_key, y_values, match, tmp_path):
+    with pytest.raises(ValueError, match=match):
+        plot_heatmap(vals, "wheel_radius", ["0.9", "1.0", "1.1"], y_key, y_values, "t", tmp_path / "bad.png")
+
+
+def test_plot_heatmap_rejects_empty_x(tmp_path):
+    with pytest.raises(ValueError, match="x_values"):
+        plot_heatmap(np.zeros((1, 0)), "k", [], "j", ["a"], "t", tmp_path / "bad.png")
