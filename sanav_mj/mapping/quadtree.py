@@ -30,7 +30,10 @@ import numpy as np
 
 @dataclass(frozen=True)
 class QuadtreeLeaves:
-    """The leaves of a quadtree over an (ny, nx) grid, sorted by ``(i0, j0)``.
+    """The leaves of a quadtree over an (ny, nx) grid.
+
+    Leaves are ordered by depth (root first) and, within one depth, in Z (Morton) order:
+    the order in which :func:`build_quadtree` finds them.
 
     Attributes:
         boxes: (n, 4) int64 cell boxes ``[i0, j0, i1, j1)``: rows ``i0 .. i1-1`` (along y),
@@ -125,39 +128,38 @@ def build_quadtree(occupied: np.ndarray, min_cell: int = 1) -> QuadtreeLeaves:
             wide; a mixed node that may not be split is an occupied leaf. Integer >= 1.
 
     Returns:
-        The leaves, which partition the grid exactly, sorted by ``(i0, j0)``.
+        The leaves, which partition the grid exactly (ordered by depth, then Z order).
     """
     occ = _check_occupied(occupied)
     m = _check_min_cell(min_cell)
     ny, nx = occ.shape
     levels = count_pyramid(occ)
+    log_root = len(levels) - 1
     i0 = np.zeros(1, dtype=np.int64)
     j0 = np.zeros(1, dtype=np.int64)
-    log_size = len(levels) - 1
-    size = 1 << log_size
-    depth = 0
-    out_boxes, out_free, out_depth = [], [], []
+    out_i, out_j, out_free, out_depth = [], [], [], []
     qi = np.array([0, 0, 1, 1], dtype=np.int64)
     qj = np.array([0, 1, 0, 1], dtype=np.int64)
-    while i0.size:
-        i1 = np.minimum(i0 + size, ny)
-        j1 = np.minimum(j0 + size, nx)
+    for depth in range(log_root + 1):
+        log_size = log_root - depth
+        size = 1 << log_size
         counts = levels[log_size]
-        count = counts.ravel()[(i0 >> log_size) * counts.shape[1] + (j0 >> log_size)].astype(np.int64)
+        count = counts.ravel()[(i0 >> log_size) * counts.shape[1] + (j0 >> log_size)]
+        if ny % size or nx % size:  # nodes on the far edges are clipped to the grid
+            area = (np.minimum(i0 + size, ny) - i0) * (np.minimum(j0 + size, nx) - j0)
+        else:
+            area = size * size
         free = count == 0
         splittable = size // 2 >= m
-        if splittable:
-            leaf = np.flatnonzero(free | (count == (i1 - i0) * (j1 - j0)))
-        else:
-            leaf = np.arange(i0.size)
-        if leaf.size:
-            out_boxes.append(np.stack([i0[leaf], j0[leaf], i1[leaf], j1[leaf]], axis=1))
-            out_free.append(free[leaf])
-            out_depth.append(np.full(leaf.size, depth, dtype=np.int64))
-        if not splittable or leaf.size == i0.size:
+        is_leaf = (free | (count == area)) if splittable else np.ones(i0.size, dtype=bool)
+        leaf = np.flatnonzero(is_leaf)
+        out_i.append(i0[leaf])
+        out_j.append(j0[leaf])
+        out_free.append(free[leaf])
+        out_depth.append(np.full(leaf.size, depth, dtype=np.int64))
+        if leaf.size == i0.size:
             break
-        mixed = np.ones(i0.size, dtype=bool)
-        mixed[leaf] = False
+        mixed = np.flatnonzero(~is_leaf)
         half = size // 2
         ci = (i0[mixed][:, None] + half * qi).ravel()
         cj = (j0[mixed][:, None] + half * qj).ravel()
@@ -165,14 +167,12 @@ def build_quadtree(occupied: np.ndarray, min_cell: int = 1) -> QuadtreeLeaves:
             keep = (ci < ny) & (cj < nx)
             ci, cj = ci[keep], cj[keep]
         i0, j0 = ci, cj
-        size = half
-        log_size -= 1
-        depth += 1
-    boxes = np.concatenate(out_boxes)
-    free = np.concatenate(out_free)
-    depths = np.concatenate(out_depth)
-    order = np.argsort(boxes[:, 0] * (nx + 1) + boxes[:, 1])
-    return QuadtreeLeaves(boxes=boxes[order], free=free[order], depth=depths[order])
+    i0 = np.concatenate(out_i)
+    j0 = np.concatenate(out_j)
+    depth = np.concatenate(out_depth)
+    size = np.left_shift(1, log_root - depth)
+    boxes = np.stack([i0, j0, np.minimum(i0 + size, ny), np.minimum(j0 + size, nx)], axis=1)
+    return QuadtreeLeaves(boxes=boxes, free=np.concatenate(out_free), depth=depth)
 
 
 def quadtree_recursive(occupied: np.ndarray, min_cell: int = 1) -> QuadtreeLeaves:
@@ -183,7 +183,8 @@ def quadtree_recursive(occupied: np.ndarray, min_cell: int = 1) -> QuadtreeLeave
     node. Used by the tests and by ``scripts/bench_areas.py`` as the straightforward
     baseline; do not use it in the pipeline.
 
-    Args and Returns: as :func:`build_quadtree`.
+    Args and Returns: as :func:`build_quadtree`, except that the leaves come in depth-first
+    order; :func:`sort_leaves` puts both in one canonical order.
     """
     occ = _check_occupied(occupied)
     m = _check_min_cell(min_cell)
@@ -207,8 +208,14 @@ def quadtree_recursive(occupied: np.ndarray, min_cell: int = 1) -> QuadtreeLeave
                 visit(ci, cj, half, depth + 1)
 
     visit(0, 0, _root_size(ny, nx), 0)
-    b = np.array(boxes, dtype=np.int64).reshape(-1, 4)
-    f = np.array(states, dtype=bool)
-    d = np.array(depths, dtype=np.int64)
-    order = np.lexsort((b[:, 1], b[:, 0]))
-    return QuadtreeLeaves(boxes=b[order], free=f[order], depth=d[order])
+    return QuadtreeLeaves(
+        boxes=np.array(boxes, dtype=np.int64).reshape(-1, 4),
+        free=np.array(states, dtype=bool),
+        depth=np.array(depths, dtype=np.int64),
+    )
+
+
+def sort_leaves(leaves: QuadtreeLeaves) -> QuadtreeLeaves:
+    """The same leaves sorted by ``(i0, j0)`` (a canonical order, e.g. to compare two trees)."""
+    order = np.lexsort((leaves.boxes[:, 1], leaves.boxes[:, 0]))
+    return QuadtreeLeaves(boxes=leaves.boxes[order], free=leaves.free[order], depth=leaves.depth[order])

@@ -129,11 +129,15 @@ def _touching(a_far: np.ndarray, a_s0: np.ndarray, a_s1: np.ndarray,
     order = np.argsort(key)
     key_start = key[order]
     key_end = key_start + (b_s1 - b_s0)[order]
-    lo = np.searchsorted(key_end, a_far * base + a_s0, side="right")
-    hi = np.searchsorted(key_start, a_far * base + a_s1, side="left")
+    # Queries in sorted order make the binary searches cache-friendly.
+    query = a_far * base + a_s0
+    a_order = np.argsort(query)
+    query = query[a_order]
+    lo = np.searchsorted(key_end, query, side="right")
+    hi = np.searchsorted(key_start, query + (a_s1 - a_s0)[a_order], side="left")
     n = np.maximum(hi - lo, 0)
     total = int(n.sum())
-    a = np.repeat(np.arange(len(a_far)), n)
+    a = np.repeat(a_order, n)
     pos = np.repeat(lo - (np.cumsum(n) - n), n) + np.arange(total)
     return a, order[pos]
 

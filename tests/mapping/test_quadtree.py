@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from _mapping_reference import grids
-from sanav_mj.mapping.quadtree import build_quadtree, count_pyramid, quadtree_recursive
+from sanav_mj.mapping.quadtree import build_quadtree, count_pyramid, quadtree_recursive, sort_leaves
 
 
 def check_partition(occ: np.ndarray, leaves, min_cell: int) -> None:
@@ -42,15 +42,19 @@ def test_leaves_partition_the_grid(occ, min_cell):
     leaves = build_quadtree(occ, min_cell)
     check_partition(occ, leaves, min_cell)
     assert leaves.n_free + leaves.n_occupied == len(leaves)
-    order = np.lexsort((leaves.boxes[:, 1], leaves.boxes[:, 0]))
-    assert np.array_equal(order, np.arange(len(leaves)))
+    # Documented order: by depth, then Z (Morton) order of the node index within a depth.
+    size = (1 << (max(occ.shape) - 1).bit_length()) >> leaves.depth
+    a, b = leaves.boxes[:, 0] // size, leaves.boxes[:, 1] // size
+    morton = sum(((a >> k) & 1) << (2 * k + 1) | ((b >> k) & 1) << (2 * k) for k in range(12))
+    key = list(zip(leaves.depth.tolist(), morton.tolist()))
+    assert key == sorted(key)
 
 
 @settings(max_examples=150, deadline=None)
 @given(grids(), st.integers(1, 5))
 def test_vectorised_equals_recursive(occ, min_cell):
-    fast = build_quadtree(occ, min_cell)
-    slow = quadtree_recursive(occ, min_cell)
+    fast = sort_leaves(build_quadtree(occ, min_cell))
+    slow = sort_leaves(quadtree_recursive(occ, min_cell))
     assert np.array_equal(fast.boxes, slow.boxes)
     assert np.array_equal(fast.free, slow.free)
     assert np.array_equal(fast.depth, slow.depth)
