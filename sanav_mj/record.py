@@ -29,8 +29,10 @@ Entity paths (world frame, metres; all 2D entities live under ``world``)
     ``world/quadtree/free``     Boxes2D, free quadtree leaves (hidden by default).
     ``world/quadtree/occupied`` Boxes2D, occupied quadtree leaves (hidden by default).
     ``world/safe_areas``        Boxes2D, merged safe rectangles; instance index = area id.
-    ``world/graph/edges``       LineStrips2D, one segment per graph edge between centres.
-    ``world/graph/nodes``       Points2D, area centres; instance index = area id.
+    ``world/graph/edges``       LineStrips2D, one segment per graph edge between centres
+                                (hidden by default).
+    ``world/graph/nodes``       Points2D, area centres; instance index = area id (hidden
+                                by default).
     ``world/plan/corridor``     Boxes2D, the corridor's areas (label = area id).
     ``world/plan/waypoints``    Points2D, start, portal crossings, goal.
     ``world/plan/path``         LineStrips2D, arc-length-interpolated waypoint polyline.
@@ -149,16 +151,20 @@ class RecordConfig:
             (1 = every step, as it happens); the rest is sent by :meth:`Recorder.finish`.
         show_quadtree: show the quadtree leaves in the default layout (they are always
             recorded; hidden by default because the safe areas cover the same ground).
+        show_graph: show the connectivity graph in the default layout (always recorded;
+            hidden by default: on real maps its many edges hide the run).
     """
 
     flush_every: int = 50
     show_quadtree: bool = False
+    show_graph: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.flush_every, bool) or not isinstance(self.flush_every, int) or self.flush_every < 1:
             raise ValueError(f"RecordConfig.flush_every: expected an integer >= 1 [steps], got {self.flush_every!r}")
-        if not isinstance(self.show_quadtree, bool):
-            raise ValueError(f"RecordConfig.show_quadtree: expected a bool, got {self.show_quadtree!r}")
+        for name in ("show_quadtree", "show_graph"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"RecordConfig.{name}: expected a bool, got {getattr(self, name)!r}")
 
 
 def robot_footprint(model: mujoco.MjModel, base: str = "base") -> np.ndarray:
@@ -225,8 +231,11 @@ def _closed(poly: np.ndarray) -> np.ndarray:
     return np.vstack((poly, poly[:1]))
 
 
-def default_blueprint(show_quadtree: bool = False) -> rrb.Blueprint:
-    """The layout sent with every recording: the 2D map beside the time-series panels."""
+def default_blueprint(show_quadtree: bool = False, show_graph: bool = False) -> rrb.Blueprint:
+    """The layout sent with every recording: the 2D map beside the time-series panels.
+
+    The quadtree leaves and the graph are recorded but hidden unless asked for (toggle them
+    with the eye icon in the viewer's blueprint panel)."""
     history = rrb.VisibleTimeRanges(
         [
             rrb.VisibleTimeRange(TIMELINE_STEP, start=rrb.TimeRangeBoundary.infinite(),
@@ -239,6 +248,9 @@ def default_blueprint(show_quadtree: bool = False) -> rrb.Blueprint:
     if not show_quadtree:
         overrides["/world/quadtree/free"] = rrb.EntityBehavior(visible=False)
         overrides["/world/quadtree/occupied"] = rrb.EntityBehavior(visible=False)
+    if not show_graph:
+        overrides["/world/graph/edges"] = rrb.EntityBehavior(visible=False)
+        overrides["/world/graph/nodes"] = rrb.EntityBehavior(visible=False)
     world = rrb.Spatial2DView(name="map (world frame, m)", origin="/", contents="/world/**", overrides=overrides)
     plots = rrb.Vertical(
         rrb.TimeSeriesView(name="velocity: commanded vs measured", origin="/plots/velocity"),
@@ -290,12 +302,12 @@ class Recorder:
         self._n_areas = int(np.asarray(prep.areas.rects).reshape(-1, 4).shape[0])
         self._rects = np.asarray(prep.areas.rects, dtype=float).reshape(-1, 4)
         self._sent = 0  # trace rows already sent
-        self._seen = 0  # trace rows reported by log_step
         self._last_status: str | None = None
         self._closed = False
         self.rec = rr.RecordingStream(APP_ID, make_default=False, make_thread_default=False)
         self.rec.save(self.path)
-        self.rec.send_blueprint(default_blueprint(config.show_quadtree), make_active=True, make_default=True)
+        self.rec.send_blueprint(default_blueprint(config.show_quadtree, config.show_graph), make_active=True,
+                                make_default=True)
         self.rec.send_recording_name(f"{prep.scenario.name} / {self.controller}")
         self._log_static()
 
@@ -409,7 +421,6 @@ class Recorder:
         n = len(trace)
         if step != n - 1:
             raise ValueError(f"Recorder.log_step: step must be the trace's last index {n - 1}, got {step}")
-        self._seen = n
         if n - self._sent >= self.config.flush_every:
             self._send(trace, n)
 
