@@ -433,3 +433,50 @@ def train_dqn(
     model.learn(total_timesteps=config.total_steps, callback=_Episodes())
     log.wall_time_s = time.perf_counter() - t0
     return model, log
+
+
+def evaluate_greedy(
+    env: NavEnv,
+    act: Callable[[np.ndarray], int],
+    episodes: int,
+    seed: int,
+) -> dict[str, Any]:
+    """Run ``episodes`` episodes of a deterministic policy and count the outcomes.
+
+    Args:
+        env: the environment (its map range decides which maps are used).
+        act: ``f(observation) -> action index`` (e.g. :meth:`sanav_mj.control.dqn.DQNPolicy.act`).
+        episodes: number of episodes, >= 1.
+        seed: the first reset is seeded with it (map choice, start yaw, swap), the rest follow.
+
+    Returns:
+        ``{"episodes", "success_rate", "reasons": {reason: count}, "mean_return",
+        "mean_length", "mean_success_length"}`` (lengths in steps).
+    """
+    if episodes < 1:
+        raise ValueError(f"episodes: expected >= 1, got {episodes!r}")
+    reasons: dict[str, int] = {}
+    returns, lengths, ok_lengths = [], [], []
+    obs, _ = env.reset(seed=seed)
+    for _ in range(episodes):
+        ret, n = 0.0, 0
+        while True:
+            obs, r, term, trunc, info = env.step(act(obs))
+            ret += r
+            n += 1
+            if term or trunc:
+                break
+        reasons[info["reason"]] = reasons.get(info["reason"], 0) + 1
+        returns.append(ret)
+        lengths.append(n)
+        if info["reason"] == "goal":
+            ok_lengths.append(n)
+        obs, _ = env.reset()
+    return {
+        "episodes": episodes,
+        "success_rate": reasons.get("goal", 0) / episodes,
+        "reasons": dict(sorted(reasons.items())),
+        "mean_return": float(np.mean(returns)),
+        "mean_length": float(np.mean(lengths)),
+        "mean_success_length": float(np.mean(ok_lengths)) if ok_lengths else float("nan"),
+    }

@@ -1,0 +1,198 @@
+#!/usr/bin/env python
+"""Train the DQN baseline on generated training maps and write the shipped policy.
+
+Needs the ``rl`` extra (``pip install torch==2.13.0`` first on CPU-only machines, then
+``pip install -e .[rl]``). Writes into ``--out`` (default ``models/dqn``):
+
+    policy.npz       Q-network weights + observation/action spec (NumPy-only inference)
+    dqn_sb3.zip      the stable-baselines3 model (without replay buffer), if under 2 MB
+    training.json    seed, hyper-parameters, environment config, steps, wall time, metrics
+    training.png     training curve: episode return, success rate, TD loss
+    episodes.csv     one row per training episode
+
+Example (the shipped policy):  python scripts/train_dqn.py --steps 300000 --seed 0
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import platform
+import sys
+import time
+from dataclasses import asdict, replace
+from pathlib import Path
+
+import numpy as np
+
+from sanav_mj.control.dqn import DEFAULT_POLICY_FILE, DQNPolicy, qnetwork_from_sb3
+from sanav_mj.sim.nav_env import NavEnv, NavEnvConfig, TrainConfig, evaluate_greedy, train_dqn
+
+#: Held-out map seeds for the post-training check (disjoint from the training range).
+VALIDATION_MAP_SEED_START = 900_000
+SB3_ZIP_LIMIT_BYTES = 2 * 1024 * 1024
+
+
+def _rolling(x: np.ndarray, n: int) -> np.ndarray:
+    """Trailing mean over up to ``n`` samples, same length as ``x``."""
+    if len(x) == 0:
+        return x
+    c = np.cumsum(np.insert(np.asarray(x, dtype=float), 0, 0.0))
+    idx = np.arange(1, len(x) + 1)
+    lo = np.maximum(0, idx - n)
+    return (c[idx] - c[lo]) / (idx - lo)
+
+
+def _plot(log, total_steps: int, path: Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ep = log.episode_array()
+    loss = log.loss_array()
+    fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+    if len(ep):
+        axes[0].plot(ep[:, 0], ep[:, 1], ".", ms=1.5, alpha=0.3, color="tab:blue")
+        axes[0].plot(ep[:, 0], _rolling(ep[:, 1], 100), color="tab:blue", label="mean of last 100 episodes")
+        axes[1].plot(ep[:, 0], 100 * _rolling(ep[:, 3], 100), color="tab:green")
+    axes[0].set_ylabel("episode return")
+    axes[0].legend(loc="lower right")
+    axes[1].set_ylabel("success % (last 100)")
+    axes[1].set_ylim(0, 100)
+    if len(loss):
+        axes[2].plot(loss[:, 0], _rolling(loss[:, 1], 500), color="tab:red")
+        axes[2].set_yscale("log")
+    axes[2].set_ylabel("TD (Huber) loss\n(mean of last 500 updates)")
+    axes[2].set_xlabel("environment steps")
+    axes[2].set_xlim(0, total_steps)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
+    ap.add_argument("--steps", type=int, default=TrainConfig.total_steps, help="environment steps")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, default=Path("models/dqn"))
+    ap.add_argument("--n-maps", type=int, default=NavEnvConfig.n_maps, help="number of training maps")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads")
+    ap.add_argument("--val-episodes", type=int, default=200, help="held-out greedy episodes after training")
+    ap.add_argument("--measure", type=int, default=0,
+                    help="only measure training steps/s over this many steps, write nothing")
+    args = ap.parse_args(argv)
+
+    import gymnasium
+    import mujoco
+    import stable_baselines3
+    import torch
+    from tqdm import tqdm
+
+    env_cfg = NavEnvConfig(n_maps=args.n_maps)
+    train_cfg = TrainConfig(total_steps=args.measure or args.steps, torch_threads=args.threads)
+    if args.measure:
+        train_cfg = replace(train_cfg, learning_starts=min(train_cfg.learning_starts, args.measure // 4))
+    env = NavEnv(env_cfg)
+
+    bar = tqdm(total=train_cfg.total_steps, unit="step", smoothing=0.05)
+
+    def progress(step: int, log) -> None:
+        bar.n = step
+        recent = log.episodes[-100:]
+        if recent:
+            bar.set_postfix(ep=len(log.episodes), ret=f"{np.mean([e[1] for e in recent]):.2f}",
+                            succ=f"{np.mean([e[3] for e in recent]):.2f}")
+        bar.refresh()
+
+    model, log = train_dqn(env, train_cfg, seed=args.seed, progress=progress)
+    bar.close()
+    steps_per_s = train_cfg.total_steps / log.wall_time_s
+    print(f"trained {train_cfg.total_steps} steps in {log.wall_time_s:.0f} s ({steps_per_s:.0f} steps/s), "
+          f"{len(log.episodes)} episodes")
+    if args.measure:
+        return 0
+
+    # Export and check the NumPy network against torch on random observations.
+    net = qnetwork_from_sb3(model)
+    rng = np.random.default_rng(args.seed)
+    probe = rng.uniform(-1, 1, size=(256, env_cfg.obs.size)).astype(np.float32)
+    with torch.no_grad():
+        q_torch = model.q_net(torch.as_tensor(probe)).numpy()
+    max_diff = float(np.abs(net.q_values(probe) - q_torch).max())
+    if max_diff > 1e-4:
+        print(f"error: numpy and torch Q-values differ by {max_diff}", file=sys.stderr)
+        return 1
+
+    # Held-out check on generated maps the training never saw.
+    val_env = NavEnv(replace(env_cfg, map_seed_start=VALIDATION_MAP_SEED_START, n_maps=args.val_episodes))
+    policy_tmp = DQNPolicy(net, env_cfg.obs, env_cfg.actions, env_cfg.dt)
+    validation = evaluate_greedy(val_env, policy_tmp.act, args.val_episodes, seed=args.seed + 1)
+    print(f"held-out greedy: {validation}")
+
+    ep = log.episode_array()
+    loss = log.loss_array()
+    last = ep[-200:]
+    final = {
+        "episodes": int(len(ep)),
+        "last_200_episodes": {
+            "mean_return": float(last[:, 1].mean()),
+            "success_rate": float(last[:, 3].mean()),
+            "reasons": {r: sum(1 for e in log.episodes[-200:] if e[4] == r)
+                        for r in sorted({e[4] for e in log.episodes[-200:]})},
+        },
+        "td_loss_first_1000_updates": float(loss[:1000, 1].mean()),
+        "td_loss_last_1000_updates": float(loss[-1000:, 1].mean()),
+        "held_out_greedy": validation,
+        "numpy_vs_torch_max_abs_q_diff": max_diff,
+    }
+    info = {
+        "seed": args.seed,
+        "total_steps": train_cfg.total_steps,
+        "wall_time_s": round(log.wall_time_s, 1),
+        "steps_per_s": round(steps_per_s, 1),
+        "algorithm": "stable-baselines3 DQN, MlpPolicy",
+        "hyperparameters": asdict(train_cfg),
+        "env": {
+            "dt": env_cfg.dt, "max_steps": env_cfg.max_steps, "goal_tolerance_m": env_cfg.goal_tolerance_m,
+            "stuck_window_s": env_cfg.stuck_window_s, "stuck_progress_m": env_cfg.stuck_progress_m,
+            "training_map_seeds": [env_cfg.map_seed_start, env_cfg.map_seed_start + env_cfg.n_maps - 1],
+            "validation_map_seeds": [VALIDATION_MAP_SEED_START, VALIDATION_MAP_SEED_START + args.val_episodes - 1],
+            "swap_start_goal": env_cfg.swap_start_goal, "reward": asdict(env_cfg.reward),
+        },
+        "final_metrics": final,
+        "versions": {
+            "python": platform.python_version(), "torch": torch.__version__,
+            "stable_baselines3": stable_baselines3.__version__, "gymnasium": gymnasium.__version__,
+            "mujoco": mujoco.__version__, "numpy": np.__version__,
+        },
+        "machine": f"{platform.machine()}, {__import__('os').cpu_count()} cores",
+        "created": time.strftime("%Y-%m-%d %H:%M:%S"),
+    }
+
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    DQNPolicy(net, env_cfg.obs, env_cfg.actions, env_cfg.dt, info=info).save(out / DEFAULT_POLICY_FILE)
+    zip_path = out / "dqn_sb3.zip"
+    model.save(zip_path, exclude=["replay_buffer"])
+    if zip_path.stat().st_size > SB3_ZIP_LIMIT_BYTES:
+        zip_path.unlink()
+        info["sb3_zip"] = "not kept (over 2 MB)"
+    (out / "training.json").write_text(json.dumps(info, indent=2) + "\n")
+    with open(out / "episodes.csv", "w", newline="") as f:
+        wr = csv.writer(f)
+        wr.writerow(["end_step", "return", "length", "success", "reason", "map_seed"])
+        for e in log.episodes:
+            wr.writerow([e[0], f"{e[1]:.4f}", e[2], int(e[3]), e[4], e[5]])
+    _plot(log, train_cfg.total_steps, out / "training.png",
+          f"DQN training (seed {args.seed}, {train_cfg.total_steps} steps, {log.wall_time_s / 60:.0f} min)")
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
