@@ -20,18 +20,7 @@ from typing import Any
 import numpy as np
 
 from sanav_mj.mapping.safe_areas import SafeAreas
-from sanav_mj.planning.corridor import (
-    build_graph,
-    contains,
-    find_area,
-    oriented_portals,
-    path_length,
-    portal_waypoints,
-    project_into_rect,
-    reachable_from,
-    shortest_corridor_astar,
-    shortest_corridor_dijkstra,
-)
+from sanav_mj.planning.corridor import build_graph, oriented_portals, path_length, portal_waypoints, select_corridor
 from sanav_mj.planning.reference import Plan, Reference
 from sanav_mj.planning.smoothing import corridor_assignment, safe_curve
 from sanav_mj.planning.timing import time_parametrise
@@ -87,7 +76,7 @@ class PlannerConfig:
     yaw_rate_fraction: float = 0.8
     accel_fraction: float = 0.8
     lateral_accel: float = 1.0
-    search: str = "astar"
+    search: str = "dijkstra"
 
     def __post_init__(self) -> None:
         positive = ("dt", "spacing", "knot_spacing", "lam", "check_spacing", "lateral_accel")
@@ -182,36 +171,13 @@ def plan(
         return _fail("no_path", "no safe areas", goal, start, info)
 
     # ---- start and goal areas, goal projection, corridor -------------------------------
-    p0 = start[:2].copy()
-    s_area, s_dist = find_area(rects, p0)
-    if s_dist > cfg.max_projection:
-        return _fail("no_path", f"start is {s_dist:.3f} m from the nearest safe area", goal, start, info)
-    if s_dist > 0:
-        p0 = project_into_rect(rects[s_area], p0, cfg.goal_offset)
     graph = build_graph(areas)
-    search = shortest_corridor_astar if cfg.search == "astar" else shortest_corridor_dijkstra
-
-    goal_used = goal.copy()
-    corridor = None
-    inside = np.flatnonzero(contains(rects, goal[None])[0])
-    if inside.size:
-        for g_area in inside:  # a goal on a shared edge lies in several areas
-            corridor = search(graph, s_area, int(g_area))
-            if corridor is not None:
-                break
-        if corridor is None:
-            return _fail("no_path", "the goal's safe area is not connected to the start's", goal, start, info)
-    else:
-        reach = reachable_from(graph, s_area)
-        g_area, g_dist = find_area(rects, goal, allowed=reach)
-        if g_area < 0 or g_dist > cfg.max_projection:
-            return _fail(
-                "no_path", f"goal is {g_dist:.3f} m from the nearest reachable safe area", goal, start, info
-            )
-        goal_used = project_into_rect(rects[g_area], goal, cfg.goal_offset)
-        corridor = search(graph, s_area, g_area)
-        if corridor is None:  # cannot happen (g_area is reachable); kept as a guard
-            return _fail("no_path", "no corridor to the projected goal", goal, start, info)
+    choice = select_corridor(
+        areas, graph, start[:2], goal, search=cfg.search, offset=cfg.goal_offset, max_projection=cfg.max_projection
+    )
+    if choice.corridor is None:
+        return _fail("no_path", choice.detail, goal, start, info)
+    corridor, p0, goal_used = choice.corridor, choice.start, choice.goal
     t_search = time.perf_counter()
 
     # ---- waypoints through the portals ----------------------------------------------

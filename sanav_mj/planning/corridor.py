@@ -32,7 +32,7 @@ import numpy as np
 from scipy.sparse import csr_array
 from scipy.sparse.csgraph import dijkstra
 
-from sanav_mj.mapping.safe_areas import SafeAreas
+from sanav_mj.mapping.safe_areas import SafeAreas, locate
 
 CONTAIN_TOL = 1e-9
 """[m] a point within this distance outside a rectangle's closed boundary counts as inside."""
@@ -504,3 +504,100 @@ def path_length(points: np.ndarray) -> float:
     if len(points) < 2:
         return 0.0
     return float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
+
+
+# --------------------------------------------------------------------------------------
+# start / goal areas, goal projection and corridor in one call
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CorridorChoice:
+    """Result of :func:`select_corridor`.
+
+    Attributes:
+        corridor: (C,) int area indices from the start area to the goal area, or None.
+        start: (2,) [m] start point used (projected inwards when it was outside every area).
+        goal: (2,) [m] goal point used (projected into the nearest reachable area when it
+            was outside every area).
+        detail: why there is no corridor ("" when there is one).
+    """
+
+    corridor: np.ndarray | None
+    start: np.ndarray
+    goal: np.ndarray
+    detail: str = ""
+
+
+def _candidates(areas: SafeAreas, rects: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """Areas containing ``point``: the one ``locate`` gives first, then any others (a point on
+    a shared edge or corner lies in several)."""
+    first = locate(areas, point, tol=CONTAIN_TOL)
+    if first < 0:
+        return np.zeros(0, dtype=np.int64)
+    others = np.flatnonzero(contains(rects, point[None])[0])
+    return np.concatenate([[first], others[others != first]]).astype(np.int64)
+
+
+def select_corridor(
+    areas: SafeAreas,
+    graph: AreaGraph,
+    start: np.ndarray,
+    goal: np.ndarray,
+    search: str = "astar",
+    offset: float = 0.1,
+    max_projection: float = math.inf,
+) -> CorridorChoice:
+    """Start and goal areas, goal projection and the shortest corridor (paper Sec. III-C).
+
+    * Start: the area containing it (``mapping.safe_areas.locate``); when it is outside
+      every area, the nearest area, with the start projected into it (inward ``offset``).
+    * Goal inside a safe area: the shortest corridor to it; if that area is not connected
+      to the start's, there is no path (a walled-off goal is never silently replaced).
+    * Goal outside every area: projected to the closest boundary point of the nearest area
+      reachable from the start area and moved inwards by ``offset``
+      (:func:`project_into_rect`), as the paper; farther than ``max_projection`` from every
+      reachable area means no path.
+
+    Args:
+        areas: safe areas; graph: their adjacency (:func:`build_graph`).
+        start, goal: (2,) [m].
+        search: ``"astar"`` or ``"dijkstra"``.
+        offset: [m] inward offset of projected points.
+        max_projection: [m] largest accepted projection distance (start or goal).
+
+    Returns:
+        A :class:`CorridorChoice`; ``corridor`` is None when there is no path.
+    """
+    rects = np.asarray(areas.rects, dtype=float).reshape(-1, 4)
+    run = shortest_corridor_astar if search == "astar" else shortest_corridor_dijkstra
+    start = np.asarray(start, dtype=float)
+    goal = np.asarray(goal, dtype=float)
+    s_cands = _candidates(areas, rects, start)
+    start_used = start.copy()
+    if s_cands.size == 0:
+        s_area, s_dist = find_area(rects, start)
+        if s_area < 0 or s_dist > max_projection:
+            return CorridorChoice(None, start, goal, f"start is {s_dist:.3f} m from the nearest safe area")
+        start_used = project_into_rect(rects[s_area], start, offset)
+        s_cands = np.array([s_area], dtype=np.int64)
+
+    g_cands = _candidates(areas, rects, goal)
+    if g_cands.size:
+        for s in s_cands:
+            for g in g_cands:
+                cor = run(graph, int(s), int(g))
+                if cor is not None:
+                    return CorridorChoice(cor, start_used, goal.copy())
+        return CorridorChoice(None, start_used, goal, "the goal's safe area is not connected to the start's")
+
+    best = (-1, math.inf, -1)
+    for s in s_cands:
+        g, d = find_area(rects, goal, allowed=reachable_from(graph, int(s)))
+        if g >= 0 and d < best[1]:
+            best = (g, d, int(s))
+    g, d, s = best
+    if g < 0 or d > max_projection:
+        return CorridorChoice(None, start_used, goal, f"goal is {d:.3f} m from the nearest reachable safe area")
+    goal_used = project_into_rect(rects[g], goal, offset)
+    return CorridorChoice(run(graph, s, g), start_used, goal_used)

@@ -17,7 +17,10 @@ class Reference:
         states: (K, 3) [m, m, rad] reference x, y, yaw; yaw is unwrapped (continuous).
         inputs: (K, 2) [m/s, rad/s] reference v, w; the last sample is (0, 0) at the goal.
         area: (K,) int index into ``SafeAreas.rects`` of a safe area containing each sample;
-            consecutive samples share an area or lie in adjacent areas of the corridor.
+            the areas follow the corridor order (a sample's corridor position is never before
+            the previous sample's); consecutive samples share an area or lie in consecutive
+            corridor areas, except that a corridor area the reference crosses in less than
+            one step can be stepped over (no sample falls inside it).
     """
 
     dt: float

@@ -81,3 +81,25 @@ def in_union(rects: np.ndarray, pts: np.ndarray, tol: float = 1e-9) -> np.ndarra
         & (p[..., 1] >= r[..., 1] - tol) & (p[..., 1] <= r[..., 3] + tol),
         axis=1,
     )
+
+
+def clutter_areas(seed: int, side: float = 6.0, count: int = 6, resolution: float = 0.05):
+    """Safe areas of the real mapping stage on a seeded random box/cylinder clutter map.
+
+    Returns ``(areas, free_points)``: the SafeAreas and (K, 2) [m] centres of its rectangles
+    (points that are certainly free, to draw start and goal from)."""
+    from sanav_mj.mapping import MapConfig, build_map
+    from sanav_mj.scene import Obstacle
+
+    rng = np.random.default_rng(seed)
+    obstacles = []
+    for k in range(count):
+        c = rng.uniform(0.0, side, 2)
+        if rng.random() < 0.7:
+            obstacles.append(Obstacle(f"b{k}", "box", c, float(rng.uniform(-np.pi, np.pi)), rng.uniform(0.1, 0.7, 2), 0.5, -1))
+        else:
+            r = float(rng.uniform(0.1, 0.5))
+            obstacles.append(Obstacle(f"c{k}", "cylinder", c, 0.0, np.array([r, r]), 0.5, -1))
+    m = build_map(obstacles, np.array([0.0, 0.0, side, side]), 0.35, MapConfig(resolution=resolution))
+    rects = np.asarray(m.areas.rects)
+    return m.areas, 0.5 * (rects[:, :2] + rects[:, 2:])

@@ -1,0 +1,190 @@
+"""Interpolation (eq. 5-6), B-spline smoothing (eq. 7) and the safety adaptation
+(sanav_mj/planning/smoothing.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from planning_maps import in_union
+from scipy.interpolate import BSpline
+
+from sanav_mj.planning.smoothing import (
+    Blend,
+    SmoothingProblem,
+    collocation,
+    corridor_assignment,
+    cumulative_length,
+    interpolate_uniform,
+    knot_vector,
+    safe_curve,
+    second_derivative_gram,
+    uniform_basis,
+)
+
+
+def test_interpolate_uniform_known_answer():
+    wp = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 1.0]])  # length 4
+    u, p = interpolate_uniform(wp, 0.5)
+    np.testing.assert_allclose(u, np.arange(9) * 0.5)
+    np.testing.assert_allclose(p[6], [3.0, 0.0])
+    np.testing.assert_allclose(p[7], [3.0, 0.5])
+    np.testing.assert_allclose(p[[0, -1]], wp[[0, -1]])
+    # non-divisible length: spacing shrinks so both ends are samples
+    u, p = interpolate_uniform(np.array([[0.0, 0.0], [1.0, 0.0]]), 0.3)
+    assert len(u) == 5 and np.allclose(np.diff(u), 0.25)
+
+
+def test_interpolation_handles_repeated_waypoints():
+    wp = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [1.0, 2.0]])
+    np.testing.assert_allclose(cumulative_length(wp), [0, 1, 1, 3])
+    u, p = interpolate_uniform(wp, 0.5)
+    np.testing.assert_allclose(p[2], [1.0, 0.0])
+    np.testing.assert_allclose(p[4], [1.0, 1.0])
+
+
+def test_uniform_basis_matches_scipy():
+    rng = np.random.default_rng(1)
+    L, n = 3.7, 9
+    c = rng.normal(size=(n + 3, 2))
+    u = np.r_[0.0, rng.uniform(0, L, 200), L]
+    first, vals = collocation(L, n, u)
+    np.testing.assert_allclose(vals.sum(axis=1), 1.0)
+    ours = np.einsum("kj,kjd->kd", vals, c[first[:, None] + np.arange(4)])
+    ref = BSpline(knot_vector(L, n), c, 3)(u)
+    np.testing.assert_allclose(ours, ref, atol=1e-12)
+    np.testing.assert_allclose(uniform_basis(np.array([0.0]))[0], [1 / 6, 4 / 6, 1 / 6, 0])
+
+
+@pytest.mark.parametrize("n_int", [1, 2, 7])
+def test_second_derivative_gram_is_exact(n_int):
+    L = 2.5
+    t = knot_vector(L, n_int)
+    n = n_int + 3
+    # reference: Gauss-Legendre on every knot interval (exact for these piecewise quadratics)
+    g, w = np.polynomial.legendre.leggauss(3)
+    edges = np.linspace(0, L, n_int + 1)
+    x = (0.5 * (edges[1:, None] - edges[:-1, None]) * g + 0.5 * (edges[1:, None] + edges[:-1, None])).ravel()
+    wx = (0.5 * (edges[1:, None] - edges[:-1, None]) * w).ravel()
+    d2 = np.stack([BSpline(t, np.eye(n)[i], 3).derivative(2)(x) for i in range(n)])
+    ref = (d2 * wx) @ d2.T
+    ab = second_derivative_gram(L, n_int)
+    dense = np.zeros((n, n))
+    for d in range(4):
+        for j in range(d, n):
+            dense[j - d, j] = dense[j, j - d] = ab[3 - d, j]
+    np.testing.assert_allclose(dense, ref, atol=1e-9 * np.abs(ref).max())
+
+
+def _reference_fit(u, p, lam, knot_spacing):
+    """Dense KKT solve of the same constrained least squares (reference for the banded one)."""
+    L = u[-1]
+    n_int = max(1, int(round(L / knot_spacing)))
+    n = n_int + 3
+    t = knot_vector(L, n_int)
+    B = BSpline.design_matrix(u, t, 3, extrapolate=True).toarray()
+    h = L / (len(u) - 1)
+    ab = second_derivative_gram(L, n_int)
+    G = np.zeros((n, n))
+    for d in range(4):
+        for j in range(d, n):
+            G[j - d, j] = G[j, j - d] = ab[3 - d, j]
+    H = BSpline.design_matrix(np.array([0.0, L]), t, 3, extrapolate=True).toarray()
+    K = np.block([[h * B.T @ B + lam * G, H.T], [H, np.zeros((2, 2))]])
+    rhs = np.vstack([h * B.T @ p, p[[0, -1]]])
+    return np.linalg.solve(K, rhs)[:n]
+
+
+@pytest.mark.parametrize("lam", [1e-4, 1e-2, 1.0])
+def test_banded_fit_matches_dense_kkt_and_clamps_the_ends(lam):
+    rng = np.random.default_rng(2)
+    wp = np.array([[0.0, 0.0], [2.0, 0.3], [2.5, 2.0], [4.0, 2.2]])
+    u, p = interpolate_uniform(wp, 0.1)
+    p = p + 0.01 * rng.normal(size=p.shape)
+    spl = SmoothingProblem(u, p, 0.3).solve(lam)
+    np.testing.assert_allclose(spl.coeffs, _reference_fit(u, p, lam, 0.3), atol=1e-8)
+    np.testing.assert_allclose(spl(np.array([0.0, u[-1]])), p[[0, -1]], atol=1e-10)
+
+
+def test_straight_data_gives_the_straight_line():
+    wp = np.array([[1.0, 1.0], [9.0, 3.0]])
+    u, p = interpolate_uniform(wp, 0.1)
+    spl = SmoothingProblem(u, p, 0.2).solve(0.5)
+    x = np.linspace(0, u[-1], 301)
+    np.testing.assert_allclose(spl(x), wp[0] + (wp[1] - wp[0]) * (x / u[-1])[:, None], atol=1e-9)
+
+
+def test_larger_lambda_smooths_more():
+    wp = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 3.0]])
+    u, p = interpolate_uniform(wp, 0.1)
+    prob = SmoothingProblem(u, p, 0.2)
+    dev, rough = [], []
+    x = np.linspace(0, u[-1], 601)
+    for lam in (1e-4, 1e-2, 1.0):
+        s = prob.solve(lam)
+        dev.append(np.max(np.linalg.norm(s(u) - p, axis=1)))
+        d2 = np.diff(s(x), 2, axis=0)
+        rough.append(np.sum(d2**2))
+    assert dev[0] < dev[1] < dev[2]
+    assert rough[0] > rough[1] > rough[2]
+
+
+def test_corridor_assignment_monotone_and_flags_outside():
+    rects = np.array([[0.0, 0.0, 2.0, 1.0], [1.0, 1.0, 2.0, 3.0]])
+    pts = np.array([[0.5, 0.5], [1.5, 1.0], [1.5, 0.9], [1.5, 2.0], [0.5, 2.0]])
+    hint = np.array([0, 0, 1, 1, 1])
+    pos, ok = corridor_assignment(rects, pts, hint)
+    assert ok.tolist() == [True, True, True, True, False]
+    assert pos[:4].tolist() == [0, 0, 0, 1]
+    # going back along the corridor is refused
+    pts2 = np.array([[1.5, 2.0], [0.5, 0.5]])
+    _, ok2 = corridor_assignment(rects, pts2, np.array([1, 1]))
+    assert ok2.tolist() == [True, False]
+
+
+def test_blend_widening_merges_and_covers():
+    b = Blend((), ramp=0.2).widened(np.array([1.0, 1.05, 3.0]), 0.1, 4.0)
+    np.testing.assert_allclose(b.intervals, [(0.9, 1.15), (2.9, 3.1)])
+    np.testing.assert_allclose(b(np.array([1.0, 2.9, 0.7, 0.5, 2.0])), [1.0, 1.0, 0.0, 0.0, 0.0], atol=1e-12)
+    assert 0.0 < b(np.array([0.8]))[0] < 1.0
+    np.testing.assert_allclose(b.widened(np.array([2.0]), 0.5, 4.0).intervals, [(0.9, 3.1)])
+
+
+# An L-turn whose portal crossing sits close to the inner corner: plain smoothing cuts it.
+L_RECTS = np.array([[0.0, 0.0, 4.0, 1.0], [3.0, 1.0, 4.0, 4.0]])
+L_WP = np.array([[0.5, 0.5], [3.05, 1.0], [3.5, 3.5]])  # crossing 0.05 m from the corner
+
+
+def _safe(**kw):
+    args = dict(
+        spacing=0.1, knot_spacing=0.2, lam=0.05, check_spacing=0.02, lambda_factor=0.25,
+        max_lambda_steps=4, blend_margin=0.1, blend_ramp=0.3,
+    )
+    args.update(kw)
+    return safe_curve(L_WP, np.array([0, 1]), L_RECTS, **args)
+
+
+def test_plain_smoothing_cuts_the_corner():
+    u, p = interpolate_uniform(L_WP, 0.1)
+    spl = SmoothingProblem(u, p, 0.2).solve(0.05)
+    assert not in_union(L_RECTS, spl(np.linspace(0, u[-1], 500))).all()
+
+
+def test_adaptation_reduces_lambda_and_stays_inside():
+    res = _safe()
+    assert res.safe
+    assert res.curve.lambda_steps > 0 and res.curve.spline.lam < 0.05
+    x = np.linspace(0, res.curve.length, 3000)
+    assert in_union(L_RECTS, res.curve(x)).all()
+    assert in_union(L_RECTS, res.nodes).all()
+
+
+def test_adaptation_falls_back_locally_when_lambda_may_not_shrink():
+    res = _safe(max_lambda_steps=0)
+    assert res.safe and res.curve.lambda_steps == 0
+    covered = res.curve.blend.covered
+    assert 0.0 < covered < 0.5 * res.curve.length  # local, not the whole path
+    assert in_union(L_RECTS, res.nodes).all()
+    # away from the fallback stretch the curve is still the spline
+    a, b = res.curve.blend.intervals[0]
+    far = np.array([0.2 * a, b + 0.5 * (res.curve.length - b) + 0.3])
+    np.testing.assert_allclose(res.curve(far), res.curve.spline(far), atol=1e-12)
