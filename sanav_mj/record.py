@@ -83,14 +83,18 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import mujoco
 import numpy as np
-import rerun as rr
-import rerun.blueprint as rrb
 
 from sanav_mj.scene import Scenario
+
+if TYPE_CHECKING:
+    import rerun.blueprint as rrb
+
+# rerun is imported inside the functions that log (about 0.3 s on first import): importing
+# this module for its geometry helpers (the plots do) must not pay for it.
 
 APP_ID = "sanav_mj"
 TIMELINE_STEP = "step"
@@ -236,6 +240,8 @@ def default_blueprint(show_quadtree: bool = False, show_graph: bool = False) -> 
 
     The quadtree leaves and the graph are recorded but hidden unless asked for (toggle them
     with the eye icon in the viewer's blueprint panel)."""
+    import rerun.blueprint as rrb
+
     history = rrb.VisibleTimeRanges(
         [
             rrb.VisibleTimeRange(TIMELINE_STEP, start=rrb.TimeRangeBoundary.infinite(),
@@ -290,7 +296,7 @@ class Recorder:
 
     def __init__(self, path: str | Path, prep: Any, controller: str, config: RecordConfig = RecordConfig()) -> None:
         if not isinstance(config, RecordConfig):
-            raise ValueError(f"Recorder: config must be a RecordConfig, got {type(config).__name__}")
+            raise TypeError(f"Recorder: config must be a RecordConfig, got {type(config).__name__}")
         for attr in ("scenario", "grid", "leaves", "areas", "plan"):
             if not hasattr(prep, attr):
                 raise ValueError(f"Recorder: prep must be a Prepared with .{attr}, got {type(prep).__name__}")
@@ -304,6 +310,8 @@ class Recorder:
         self._sent = 0  # trace rows already sent
         self._last_status: str | None = None
         self._closed = False
+        import rerun as rr
+
         self.rec = rr.RecordingStream(APP_ID, make_default=False, make_thread_default=False)
         self.rec.save(self.path)
         self.rec.send_blueprint(default_blueprint(config.show_quadtree, config.show_graph), make_active=True,
@@ -313,6 +321,8 @@ class Recorder:
 
     # ------------------------------------------------------------------ static scene
     def _log_static(self) -> None:
+        import rerun as rr
+
         rec, prep = self.rec, self._prep
         sc: Scenario = prep.scenario
         rec.log("world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
@@ -426,6 +436,8 @@ class Recorder:
 
     def _send(self, tr: Any, end: int) -> None:
         """Send trace rows ``[self._sent, end)`` as columns (one call per entity)."""
+        import rerun as rr
+
         a = self._sent
         if end <= a:
             return
@@ -500,6 +512,8 @@ class Recorder:
         self._sent = end
 
     def _send_horizon(self, tr: Any, a: int, end: int, idx: np.ndarray, t: np.ndarray) -> None:
+        import rerun as rr
+
         rec = self.rec
         rows, strips, colors, margin_min, mrows = [], [], [], [], []
         for i in range(a, end):
@@ -570,6 +584,8 @@ class Recorder:
         Raises:
             ValueError: called twice.
         """
+        import rerun as rr
+
         if self._closed:
             raise ValueError("Recorder.finish: the recording is already finished")
         tr = episode.trace

@@ -245,16 +245,17 @@ def test_blueprint_sent_with_the_recording(recorded):
     assert {"/plots/velocity", "/plots/wheels", "/plots/slip", "/plots/timing", "/plots/safety"} <= origins
 
 
-def rerun_cli() -> str:
+def rrd_verify(path: Path) -> subprocess.CompletedProcess:
+    """``rerun rrd verify PATH`` (the CLI installed with rerun-sdk)."""
     exe = shutil.which("rerun")
     if exe is None:
         pytest.fail("the rerun CLI (installed with rerun-sdk) is not on PATH")
-    return exe
+    return subprocess.run([exe, "rrd", "verify", str(path)], check=False, capture_output=True, text=True, timeout=120)
 
 
 def test_rrd_verify_passes(recorded):
     path, _ = recorded
-    res = subprocess.run([rerun_cli(), "rrd", "verify", str(path)], capture_output=True, text=True, timeout=120)
+    res = rrd_verify(path)
     assert res.returncode == 0, res.stderr
     assert "verified without error" in (res.stdout + res.stderr)
 
@@ -263,7 +264,7 @@ def test_rrd_verify_fails_on_a_truncated_file(recorded, tmp_path):
     path, _ = recorded
     bad = tmp_path / "cut.rrd"
     bad.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
-    res = subprocess.run([rerun_cli(), "rrd", "verify", str(bad)], capture_output=True, text=True, timeout=120)
+    res = rrd_verify(bad)
     assert res.returncode != 0
 
 
@@ -298,7 +299,7 @@ def test_empty_episode_records_map_and_summary(tmp_path):
     ents = read_rrd(path)
     assert "/world/safe_areas" in ents and "/summary" in ents
     assert "/world/robot" not in ents
-    res = subprocess.run([rerun_cli(), "rrd", "verify", str(path)], capture_output=True, text=True, timeout=120)
+    res = rrd_verify(path)
     assert res.returncode == 0, res.stderr
 
 
@@ -321,13 +322,12 @@ def test_misuse_is_a_clear_error(tmp_path):
 def test_context_manager_closes_a_valid_file(tmp_path):
     path = tmp_path / "ctx.rrd"
     full = make_trace(12)
-    with pytest.raises(RuntimeError):
-        with Recorder(path, make_prep(), "sa-mpc", RecordConfig(flush_every=5)) as rec:
-            replay(rec, full)
-            raise RuntimeError("controller crashed")
+    with pytest.raises(RuntimeError), Recorder(path, make_prep(), "sa-mpc", RecordConfig(flush_every=5)) as rec:
+        replay(rec, full)
+        raise RuntimeError("controller crashed")
     ents = read_rrd(path)
     assert ents["/plots/velocity/v_cmd"]["rows"] == 10  # two full batches were sent before the crash
-    res = subprocess.run([rerun_cli(), "rrd", "verify", str(path)], capture_output=True, text=True, timeout=120)
+    res = rrd_verify(path)
     assert res.returncode == 0, res.stderr
 
 
@@ -367,5 +367,5 @@ def test_cli_run_writes_a_recording_of_every_step(tmp_path):
     e = ents["/world/robot"]
     trans = np.array([r[0] for r in e["data"]["Transform3D:translation"]])[np.argsort(e["steps"])]
     np.testing.assert_allclose(trans[:steps, 0], doc["trace"]["x"], atol=1e-5)  # float32 in the file
-    res = subprocess.run([rerun_cli(), "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=120)
+    res = rrd_verify(rrd)
     assert res.returncode == 0, res.stderr

@@ -175,7 +175,7 @@ def plot_areas(prep: Any, path: str | Path, dpi: int = 100) -> Path:
     _frame(ax_b, bounds, f"(b) occupancy {occ.shape[1]} x {occ.shape[0]} @ {res:g} m, inflated {grid.inflation:.3g} m")
 
     if prep.leaves is not None:
-        boxes, free = _check_leaves(prep.leaves)
+        _, free = _check_leaves(prep.leaves)
         lr = leaf_rects(prep.leaves, grid.origin, res)
         _draw_rects(ax_c, lr[~free], face=_LEAF_OCC, edge="#922b21", alpha=0.55, lw=0.3)
         _draw_rects(ax_c, lr[free], face=None, edge=_LEAF_FREE, lw=0.5)
