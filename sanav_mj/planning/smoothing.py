@@ -58,7 +58,7 @@ def cumulative_length(points: np.ndarray) -> np.ndarray:
     p = np.asarray(points, dtype=float)
     s = np.zeros(p.shape[0])
     if p.shape[0] > 1:
-        np.cumsum(np.hypot(np.diff(p[:, 0]), np.diff(p[:, 1])), out=s[1:])
+        np.cumsum(np.hypot(p[1:, 0] - p[:-1, 0], p[1:, 1] - p[:-1, 1]), out=s[1:])
     return s
 
 
@@ -83,7 +83,7 @@ def segment_of(s_nodes: np.ndarray, u: np.ndarray) -> np.ndarray:
     following non-empty segment, or the last one at the end)."""
     n_seg = s_nodes.shape[0] - 1
     i = np.searchsorted(s_nodes, u, side="right") - 1
-    return np.clip(i, 0, max(n_seg - 1, 0))
+    return np.minimum(np.maximum(i, 0), max(n_seg - 1, 0))
 
 
 def interpolate_uniform(waypoints: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
@@ -156,7 +156,7 @@ def collocation(length: float, n_intervals: int, u: np.ndarray) -> tuple[np.ndar
         each ``u`` and (M, 4) their values (row k of B is ``vals[k]`` at columns
         ``first[k] .. first[k] + 3``).
     """
-    x = np.clip(u, 0.0, length) * (n_intervals / length)
+    x = np.minimum(np.maximum(u, 0.0), length) * (n_intervals / length)
     first = np.minimum(x.astype(np.int64), n_intervals - 1)
     return first, uniform_basis(x - first)
 

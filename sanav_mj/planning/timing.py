@@ -72,9 +72,15 @@ def discrete_geometry(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
         ``(sigma, heading, kappa, ds)``: (N,) [m], (N,) [rad] unwrapped, (N,) [1/m] signed,
         (N-1,) [m] chord lengths.
     """
-    d = np.diff(points, axis=0)
+    d = points[1:] - points[:-1]
     ds = np.hypot(d[:, 0], d[:, 1])
-    phi = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    raw = np.arctan2(d[:, 1], d[:, 0])
+    phi = np.empty_like(raw)  # unwrapped: consecutive chord headings differ by less than pi
+    phi[0] = raw[0]
+    if raw.size > 1:
+        turn = raw[1:] - raw[:-1]
+        np.cumsum((turn + np.pi) % (2.0 * np.pi) - np.pi, out=phi[1:])
+        phi[1:] += raw[0]
     n = points.shape[0]
     sigma = np.zeros(n)
     np.cumsum(ds, out=sigma[1:])
@@ -84,7 +90,7 @@ def discrete_geometry(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     kappa = np.zeros(n)
     if n > 2:
         heading[1:-1] = 0.5 * (phi[:-1] + phi[1:])
-        kappa[1:-1] = np.diff(phi) / (0.5 * (ds[:-1] + ds[1:]))
+        kappa[1:-1] = (phi[1:] - phi[:-1]) / (0.5 * (ds[:-1] + ds[1:]))
         kappa[0] = kappa[1]
         kappa[-1] = kappa[-2]
     return sigma, heading, kappa, ds
@@ -139,7 +145,7 @@ def profile_curve(
     Returns:
         The :class:`PathProfile` (at least 3 nodes unless the curve has length 0).
     """
-    d = np.diff(points, axis=0)
+    d = points[1:] - points[:-1]
     keep = np.ones(points.shape[0], dtype=bool)
     keep[1:] = np.hypot(d[:, 0], d[:, 1]) > 1e-12
     if not keep[-1] and keep.sum() > 1:  # keep the end point, drop its duplicate before it
@@ -198,8 +204,8 @@ def sample_profile(profile: PathProfile, dt: float) -> TimedSamples:
     t = np.arange(K) * dt
     tn, vn, sn = profile.t, profile.v, profile.sigma
     n = tn.size
-    i = np.clip(np.searchsorted(tn, t, side="right") - 1, 0, n - 2)
-    tau = np.clip(t - tn[i], 0.0, None)
+    i = np.minimum(np.maximum(np.searchsorted(tn, t, side="right") - 1, 0), n - 2)
+    tau = np.maximum(t - tn[i], 0.0)
     dsn = sn[i + 1] - sn[i]
     acc = (vn[i + 1] ** 2 - vn[i] ** 2) / (2.0 * np.maximum(dsn, 1e-15))
     span = tn[i + 1] - tn[i]
