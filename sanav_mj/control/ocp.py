@@ -1,0 +1,569 @@
+"""The unicycle tracking optimal-control problem and its solver back-ends.
+
+One builder, :func:`build_tracking_ocp`, writes the nonlinear program shared by the MPC
+controllers (SA-MPC now, the obstacle-penalty MPC baseline later): single shooting over the
+inputs of the exact unicycle (:mod:`sanav_mj.control.unicycle`), the paper's tracking cost
+and an optional extra position cost term supplied by the controller
+(:class:`PositionCost`: the safe-area penalty J_SA for SA-MPC, obstacle polygons for the
+baseline). Everything that changes between control steps is a *parameter* or a *bound*, so
+the problem is built (and, for PANOC, compiled) once:
+
+- decision variables ``z = (u_0, ..., u_{N-1})`` (2N,) [m/s, rad/s]; their box bounds
+  (input bounds, the rate bound of ``u_0`` against the previously applied input, a terminal
+  stop) are passed at every solve;
+- parameters ``p`` (see :class:`ParamLayout`): measured state, previous input, reference
+  states and inputs over the horizon, the diagonal weights and the position-cost data;
+- general constraints ``g(z, p)`` with bounds passed at every solve:
+  ``g = (p_1, ..., p_N, [position_constraints]; u_1 - u_0, ..., u_{N-1} - u_{N-2})``, i.e.
+  the predicted positions (2N,) [m] (for the stage boxes) and the input increments
+  (2(N-1),) [m/s, rad/s] (for the rate bounds).
+
+Objective (paper eq. 10-11 plus the position term)::
+
+    sum_{k=0}^{N-1} |x_k - xr_k|^2_Qx + |u_k - ur_k|^2_Qu + |u_k - u_{k-1}|^2_Qa
+      + |x_N - xr_N|^2_QN + sum_{k=1}^{N} c(p_k)
+
+with ``u_{-1}`` the previously applied input. The position term is summed over k = 1..N: at
+k = 0 the position is the measured one, a constant.
+
+Back-ends (same NLP, same parameters, same warm start):
+
+- :class:`PanocBackend`: alpaqa's augmented Lagrangian method with PANOC inner solver (the
+  paper's solver). The CasADi functions and their gradients are generated as C, compiled
+  with the system C compiler and cached on disk under a hash of the problem, so a second
+  process only loads the shared library.
+- :class:`IpoptBackend`: CasADi's IPOPT interface (exact Hessian, MUMPS), the reference.
+- :class:`SqpBackend`: CasADi ``sqpmethod`` with the ``qrqp`` active-set QP solver.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import shutil
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass
+from datetime import timedelta
+from pathlib import Path
+from typing import Protocol
+
+import casadi as cs
+import numpy as np
+
+from sanav_mj.control.unicycle import rollout_cs
+
+#: Environment variable overriding the on-disk cache of compiled problems.
+CACHE_ENV = "SANAV_MJ_CACHE"
+
+
+def default_cache_dir() -> Path:
+    """Folder for compiled solver code: ``$SANAV_MJ_CACHE`` or ``~/.cache/sanav-mj``."""
+    env = os.environ.get(CACHE_ENV)
+    if env:
+        return Path(env).expanduser()
+    return Path.home() / ".cache" / "sanav-mj"
+
+
+class PositionCost(Protocol):
+    """An extra cost on each predicted position, with its own parameters.
+
+    Attributes:
+        key: short string identifying the structure of the expression (goes into the cache
+            key of compiled code: change it whenever ``expr`` changes).
+        n_params: number of parameters the term reads.
+    """
+
+    key: str
+    n_params: int
+
+    def expr(self, p, theta):
+        """CasADi scalar cost of position ``p`` (2,) [m] given parameters ``theta`` (n_params,)."""
+
+
+@dataclass(frozen=True)
+class ParamLayout:
+    """Where each block lives in the parameter vector (all slices into ``p``).
+
+    Blocks, in order: ``x0`` (3,) [m, m, rad]; ``u_prev`` (2,) [m/s, rad/s]; ``x_ref``
+    ((N+1)*3,) row-major (N+1, 3); ``u_ref`` (N*2,) row-major (N, 2); ``q_x`` (3,);
+    ``q_u`` (2,); ``q_a`` (2,); ``q_n`` (3,); ``extra`` (n_extra,) position-cost data.
+    """
+
+    horizon: int
+    n_extra: int
+
+    @property
+    def sizes(self) -> tuple[tuple[str, int], ...]:
+        n = self.horizon
+        return (
+            ("x0", 3),
+            ("u_prev", 2),
+            ("x_ref", 3 * (n + 1)),
+            ("u_ref", 2 * n),
+            ("q_x", 3),
+            ("q_u", 2),
+            ("q_a", 2),
+            ("q_n", 3),
+            ("extra", self.n_extra),
+        )
+
+    @property
+    def size(self) -> int:
+        return sum(s for _, s in self.sizes)
+
+    def slices(self) -> dict[str, slice]:
+        out, i = {}, 0
+        for name, s in self.sizes:
+            out[name] = slice(i, i + s)
+            i += s
+        return out
+
+    def pack(
+        self,
+        x0: np.ndarray,
+        u_prev: np.ndarray,
+        x_ref: np.ndarray,
+        u_ref: np.ndarray,
+        q_x: np.ndarray,
+        q_u: np.ndarray,
+        q_a: np.ndarray,
+        q_n: np.ndarray,
+        extra: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Concatenate the blocks (shapes as in the class docstring) into ``p`` (size,)."""
+        parts = [x0, u_prev, x_ref, u_ref, q_x, q_u, q_a, q_n]
+        if self.n_extra:
+            parts.append(extra)
+        return np.concatenate([np.asarray(a, dtype=float).ravel() for a in parts])
+
+
+@dataclass
+class TrackingOCP:
+    """The symbolic single-shooting NLP ``min f(z, p) s.t. z in [zl, zu], g(z, p) in [gl, gu]``.
+
+    Attributes:
+        horizon: N, number of control intervals.
+        dt: [s] step length.
+        z: (2N,) SX decision variables (inputs, row-major (N, 2)).
+        p: (P,) SX parameters laid out as ``layout``.
+        f: scalar SX objective.
+        g: (m,) SX constraints: positions (2N,) when ``position_constraints``, then input
+            increments (2(N-1),).
+        layout: parameter layout.
+        position_constraints: whether ``g`` starts with the predicted positions.
+        key: string that identifies the structure (used for caching compiled code).
+    """
+
+    horizon: int
+    dt: float
+    z: cs.SX
+    p: cs.SX
+    f: cs.SX
+    g: cs.SX
+    layout: ParamLayout
+    position_constraints: bool
+    key: str
+
+    @property
+    def n_z(self) -> int:
+        return 2 * self.horizon
+
+    @property
+    def n_g(self) -> int:
+        return int(self.g.numel())
+
+    @property
+    def n_pos(self) -> int:
+        """Number of position-constraint rows at the start of ``g`` (2N or 0)."""
+        return 2 * self.horizon if self.position_constraints else 0
+
+    def functions(self) -> tuple[cs.Function, cs.Function]:
+        """``f(z, p)`` and ``g(z, p)`` as CasADi functions (names ``f`` and ``g``)."""
+        f = cs.Function("f", [self.z, self.p], [self.f], ["x", "p"], ["f"])
+        g = cs.Function("g", [self.z, self.p], [self.g], ["x", "p"], ["g"])
+        return f, g
+
+
+def build_tracking_ocp(
+    horizon: int,
+    dt: float,
+    position_cost: PositionCost | None = None,
+    position_constraints: bool = True,
+) -> TrackingOCP:
+    """Build the tracking NLP described in the module docstring.
+
+    Args:
+        horizon: N >= 1, number of control intervals.
+        dt: [s] > 0, step length (baked into the model).
+        position_cost: optional extra cost on each predicted position p_1..p_N.
+        position_constraints: include the predicted positions in ``g`` (for stage boxes).
+
+    Returns:
+        The symbolic problem.
+    """
+    if int(horizon) != horizon or horizon < 1:
+        raise ValueError(f"horizon must be an integer >= 1, got {horizon!r}")
+    if not (dt > 0 and math.isfinite(dt)):
+        raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
+    n = int(horizon)
+    n_extra = position_cost.n_params if position_cost is not None else 0
+    layout = ParamLayout(n, n_extra)
+    z = cs.SX.sym("z", 2 * n)
+    p = cs.SX.sym("p", layout.size)
+    sl = layout.slices()
+    x0 = p[sl["x0"]]
+    u_prev = p[sl["u_prev"]]
+    x_ref = cs.reshape(p[sl["x_ref"]], 3, n + 1)  # column k = reference state k
+    u_ref = cs.reshape(p[sl["u_ref"]], 2, n)
+    q_x, q_u, q_a, q_n = (p[sl[k]] for k in ("q_x", "q_u", "q_a", "q_n"))
+    extra = p[sl["extra"]]
+
+    us = [z[2 * k : 2 * k + 2] for k in range(n)]
+    xs = rollout_cs(x0, us, dt)
+
+    def wsq(e, q):
+        return cs.dot(q, e * e)
+
+    cost = 0
+    u_last = u_prev
+    for k in range(n):
+        cost += wsq(xs[k] - x_ref[:, k], q_x)
+        cost += wsq(us[k] - u_ref[:, k], q_u)
+        cost += wsq(us[k] - u_last, q_a)
+        u_last = us[k]
+    cost += wsq(xs[n] - x_ref[:, n], q_n)
+    if position_cost is not None:
+        for k in range(1, n + 1):
+            cost += position_cost.expr(xs[k][:2], extra)
+
+    rows = []
+    if position_constraints:
+        rows += [xs[k][:2] for k in range(1, n + 1)]
+    rows += [us[k] - us[k - 1] for k in range(1, n)]
+    g = cs.vertcat(*rows) if rows else cs.SX(0, 1)
+    key = f"track-N{n}-dt{dt!r}-pc{int(position_constraints)}-{position_cost.key if position_cost else 'none'}"
+    return TrackingOCP(n, float(dt), z, p, cost, g, layout, position_constraints, key)
+
+
+@dataclass
+class SolveResult:
+    """Outcome of one solve.
+
+    Attributes:
+        z: (2N,) [m/s, rad/s] final iterate (inputs, row-major (N, 2)).
+        y: (m,) multipliers of ``g`` at the final iterate.
+        y_z: (2N,) multipliers of the variable bounds (IPOPT/SQP), or None.
+        status: back-end status string.
+        converged: the back-end reports convergence to its tolerances.
+        iterations: inner iterations (PANOC) or NLP iterations.
+        solver_ms: [ms] time reported by or measured around the back-end call.
+    """
+
+    z: np.ndarray
+    y: np.ndarray
+    y_z: np.ndarray | None
+    status: str
+    converged: bool
+    iterations: int
+    solver_ms: float
+
+
+class Backend(Protocol):
+    """A solver for a :class:`TrackingOCP` (built once, solved many times)."""
+
+    name: str
+
+    def solve(
+        self,
+        p: np.ndarray,
+        z_lb: np.ndarray,
+        z_ub: np.ndarray,
+        g_lb: np.ndarray,
+        g_ub: np.ndarray,
+        z0: np.ndarray,
+        y0: np.ndarray | None = None,
+        y_z0: np.ndarray | None = None,
+    ) -> SolveResult:
+        """Solve with parameters ``p``, bounds and a warm start (shapes as in SolveResult)."""
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """Back-end independent solver settings.
+
+    Attributes:
+        tol: optimality tolerance (PANOC/PANTR: ALM inner stationarity epsilon; IPOPT: ``tol``;
+            SQP: ``tol_du``).
+        constraint_tol: allowed constraint violation [m for positions, m/s and rad/s for
+            increments] (ALM delta; IPOPT ``constr_viol_tol``; SQP ``tol_pr``).
+        max_iter: iteration limit (PANOC/PANTR: inner iterations per ALM pass; IPOPT/SQP:
+            NLP iterations).
+        max_outer_iter: ALM outer iterations (PANOC/PANTR only).
+        budget_ms: [ms] optional wall-clock limit per solve, or None.
+        lbfgs_memory: L-BFGS memory of PANOC.
+        initial_penalty: ALM initial penalty (PANOC/PANTR only).
+        input_scale: (2,) [m/s, rad/s] the compiled problems (PANOC/PANTR) optimise over
+            ``u / input_scale``; a larger yaw-rate scale balances the curvature of the two
+            inputs and cuts PANOC's iterations by about a quarter on the SA-MPC problem.
+    """
+
+    tol: float = 1e-4
+    constraint_tol: float = 1e-4
+    max_iter: int = 300
+    max_outer_iter: int = 20
+    budget_ms: float | None = None
+    lbfgs_memory: int = 20
+    initial_penalty: float = 10.0
+    input_scale: tuple[float, float] = (1.0, 3.0)
+
+
+def _compiler() -> str:
+    for name in (os.environ.get("CC"), "cc", "gcc", "clang"):
+        if name and shutil.which(name):
+            return name
+    raise RuntimeError("no C compiler found (set CC or install gcc) to compile the PANOC problem")
+
+
+# -O1: 10 % slower code than -O2 on this problem but 2-3x faster to compile.
+_CFLAGS = ("-O1", "-fPIC", "-shared")
+
+
+def compile_alpaqa_problem(
+    f: cs.Function, g: cs.Function, second_order: str = "no", cache_dir: Path | None = None
+) -> tuple[Path, bool]:
+    """Generate and compile an alpaqa problem from ``f(x, p)`` and ``g(x, p)``, or reuse the cache.
+
+    The cache key hashes the serialised CasADi functions, the derivative level, the CasADi
+    and alpaqa versions and the compiler flags, so any change of the problem structure
+    (horizon, dt, cost terms, scaling) compiles anew. The library is written under a
+    temporary name and renamed, so concurrent processes never load a half-written file.
+
+    Args:
+        f: objective, ``f(x (n,), p (P,)) -> (1,)``.
+        g: constraints, ``g(x, p) -> (m,)``.
+        second_order: alpaqa's derivative level (``"no"`` for PANOC, ``"psi_prod"`` for PANTR).
+        cache_dir: folder of the cache (default :func:`default_cache_dir`).
+
+    Returns:
+        (path of the shared library, True when it was compiled by this call).
+    """
+    import alpaqa
+    from alpaqa.casadi_generator import generate_casadi_problem
+
+    h = hashlib.sha256()
+    for part in (f.serialize(), g.serialize(), second_order, cs.__version__, alpaqa.__version__, " ".join(_CFLAGS)):
+        h.update(part.encode())
+    digest = h.hexdigest()[:20]
+    root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    target = root / f"alpaqa_{digest}.so"
+    if target.is_file():
+        return target, False
+    root.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=root, prefix="build_") as tmp:
+        cg = generate_casadi_problem(f, g, second_order=second_order, name="sanav_problem")
+        src = cg.generate(str(Path(tmp)) + os.sep)
+        out = Path(tmp) / "lib.so"
+        proc = subprocess.run([_compiler(), *_CFLAGS, src, "-o", str(out), "-lm"], capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"compiling the alpaqa problem failed: {proc.stderr.strip()[:2000]}")
+        os.replace(out, target)
+    return target, True
+
+
+def _status_name(status) -> str:
+    return str(status).split(".")[-1]
+
+
+class PanocBackend:
+    """alpaqa's ALM with PANOC (L-BFGS directions) on the compiled problem: the paper's solver.
+
+    The problem is compiled in scaled inputs ``u / input_scale`` (rate rows of ``g`` scaled
+    alike); :meth:`solve` takes and returns unscaled quantities.
+
+    Attributes:
+        name: ``"panoc"``.
+        library: path of the loaded shared library.
+        compiled: True when this construction compiled the code (cache miss).
+        build_s: [s] construction time (generation + compilation on a miss, loading otherwise).
+    """
+
+    name = "panoc"
+    second_order = "no"
+
+    def __init__(self, ocp: TrackingOCP, settings: SolverSettings = SolverSettings(), cache_dir: Path | None = None):
+        import alpaqa
+
+        t0 = time.perf_counter()
+        self.ocp = ocp
+        self.settings = settings
+        n = ocp.horizon
+        scale = np.asarray(settings.input_scale, dtype=float)
+        self._zs = np.tile(scale, n)
+        self._gs = np.concatenate((np.ones(ocp.n_pos), np.tile(scale, n - 1)))
+        zs = cs.SX.sym("zs", ocp.n_z)
+        f_expr = cs.substitute(ocp.f, ocp.z, zs * cs.DM(self._zs))
+        g_expr = cs.substitute(ocp.g, ocp.z, zs * cs.DM(self._zs)) / cs.DM(self._gs)
+        f = cs.Function("f", [zs, ocp.p], [f_expr], ["x", "p"], ["f"])
+        g = cs.Function("g", [zs, ocp.p], [g_expr], ["x", "p"], ["g"])
+        self.library, self.compiled = compile_alpaqa_problem(f, g, self.second_order, cache_dir)
+        self.problem = alpaqa.load_casadi_problem(str(self.library))
+        self._max_time = timedelta(seconds=settings.budget_ms / 1e3) if settings.budget_ms else timedelta(minutes=5)
+        alm = alpaqa.ALMParams(
+            tolerance=settings.tol,
+            dual_tolerance=settings.constraint_tol,
+            initial_penalty=settings.initial_penalty,
+            max_iter=settings.max_outer_iter,
+            max_time=self._max_time,
+            print_interval=0,
+        )
+        self.solver = alpaqa.ALMSolver(alm, self._inner_solver(alpaqa, settings))
+        self.build_s = time.perf_counter() - t0
+
+    def _inner_solver(self, alpaqa, settings: SolverSettings):
+        panoc = alpaqa.PANOCParams(max_iter=settings.max_iter, max_time=self._max_time, print_interval=0)
+        return alpaqa.PANOCSolver(panoc, alpaqa.LBFGS.Params(memory=settings.lbfgs_memory))
+
+    def solve(self, p, z_lb, z_ub, g_lb, g_ub, z0, y0=None, y_z0=None) -> SolveResult:
+        prob = self.problem
+        zs, gs = self._zs, self._gs
+        prob.param = p
+        prob.variable_bounds.lower = z_lb / zs
+        prob.variable_bounds.upper = z_ub / zs
+        prob.general_bounds.lower = g_lb / gs
+        prob.general_bounds.upper = g_ub / gs
+        y0 = np.zeros(self.ocp.n_g) if y0 is None else np.asarray(y0, dtype=float) * gs
+        t0 = time.perf_counter()
+        z, y, stats = self.solver(prob, np.asarray(z0, dtype=float) / zs, y0, asynchronous=False)
+        ms = (time.perf_counter() - t0) * 1e3
+        status = _status_name(stats["status"])
+        return SolveResult(
+            z=np.asarray(z) * zs,
+            y=np.asarray(y) / gs,
+            y_z=None,
+            status=status,
+            converged=status == "Converged",
+            iterations=int(stats["inner"]["iterations"]),
+            solver_ms=ms,
+        )
+
+
+class PantrBackend(PanocBackend):
+    """alpaqa's ALM with PANTR (Newton trust-region directions from Hessian-vector products).
+
+    Needs the second-order code (``psi_prod``): about twice the compile time of PANOC,
+    6-8x fewer iterations and a little faster per solve on the SA-MPC problem.
+    """
+
+    name = "pantr"
+    second_order = "psi_prod"
+
+    def _inner_solver(self, alpaqa, settings: SolverSettings):
+        params = alpaqa.PANTRParams(max_iter=settings.max_iter, max_time=self._max_time, print_interval=0)
+        return alpaqa.PANTRSolver(params)
+
+
+class _CasadiNlpBackend:
+    """Shared code of the CasADi ``nlpsol`` back-ends."""
+
+    name = "casadi"
+    plugin = ""
+
+    def _options(self, settings: SolverSettings) -> dict:
+        raise NotImplementedError
+
+    def __init__(self, ocp: TrackingOCP, settings: SolverSettings = SolverSettings(), cache_dir: Path | None = None):
+        t0 = time.perf_counter()
+        self.ocp = ocp
+        self.settings = settings
+        nlp = {"x": ocp.z, "p": ocp.p, "f": ocp.f, "g": ocp.g}
+        self.solver = cs.nlpsol(f"sanav_{self.name}", self.plugin, nlp, self._options(settings))
+        self.compiled = False
+        self.library = None
+        self.build_s = time.perf_counter() - t0
+
+    def _converged(self, stats: dict) -> bool:
+        return bool(stats.get("success", False))
+
+    def solve(self, p, z_lb, z_ub, g_lb, g_ub, z0, y0=None, y_z0=None) -> SolveResult:
+        args = dict(x0=z0, p=p, lbx=z_lb, ubx=z_ub, lbg=g_lb, ubg=g_ub)
+        if y0 is not None:
+            args["lam_g0"] = y0
+        if y_z0 is not None:
+            args["lam_x0"] = y_z0
+        t0 = time.perf_counter()
+        sol = self.solver(**args)
+        ms = (time.perf_counter() - t0) * 1e3
+        stats = self.solver.stats()
+        return SolveResult(
+            z=np.asarray(sol["x"]).ravel(),
+            y=np.asarray(sol["lam_g"]).ravel(),
+            y_z=np.asarray(sol["lam_x"]).ravel(),
+            status=str(stats.get("return_status", "unknown")),
+            converged=self._converged(stats),
+            iterations=int(stats.get("iter_count", -1)),
+            solver_ms=ms,
+        )
+
+
+class IpoptBackend(_CasadiNlpBackend):
+    """IPOPT (exact Hessian, MUMPS) through CasADi: the reference solver."""
+
+    name = "ipopt"
+    plugin = "ipopt"
+
+    def _options(self, settings: SolverSettings) -> dict:
+        ipopt = {
+            "print_level": 0,
+            "sb": "yes",
+            "tol": settings.tol,
+            "constr_viol_tol": settings.constraint_tol,
+            "max_iter": settings.max_iter,
+            "warm_start_init_point": "yes",
+            "mu_strategy": "adaptive",
+        }
+        if settings.budget_ms:
+            ipopt["max_wall_time"] = settings.budget_ms / 1e3
+        return {"ipopt": ipopt, "print_time": False}
+
+
+class SqpBackend(_CasadiNlpBackend):
+    """CasADi ``sqpmethod`` (exact Hessian) with the ``qrqp`` active-set QP solver."""
+
+    name = "sqp"
+    plugin = "sqpmethod"
+
+    def _options(self, settings: SolverSettings) -> dict:
+        return {
+            "qpsol": "qrqp",
+            "qpsol_options": {"print_iter": False, "print_header": False, "error_on_fail": False},
+            "print_header": False,
+            "print_iteration": False,
+            "print_status": False,
+            "print_time": False,
+            "max_iter": settings.max_iter,
+            "tol_pr": settings.constraint_tol,
+            "tol_du": settings.tol,
+            "error_on_fail": False,
+            "hessian_approximation": "exact",
+            "convexify_strategy": "regularize",
+        }
+
+
+BACKENDS: dict[str, type] = {
+    "panoc": PanocBackend,
+    "pantr": PantrBackend,
+    "ipopt": IpoptBackend,
+    "sqp": SqpBackend,
+}
+
+
+def make_backend(name: str, ocp: TrackingOCP, settings: SolverSettings, cache_dir: Path | None = None) -> Backend:
+    """Construct the back-end called ``name`` (one of :data:`BACKENDS`) for ``ocp``."""
+    try:
+        cls = BACKENDS[name]
+    except KeyError:
+        raise ValueError(f"solver must be one of {sorted(BACKENDS)}, got {name!r}") from None
+    return cls(ocp, settings, cache_dir)

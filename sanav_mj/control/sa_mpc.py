@@ -1,0 +1,896 @@
+"""Safe-area MPC (SA-MPC, paper Sec. III-D/E): track the reference inside the safe rectangles.
+
+The optimisation problem is the shared tracking NLP of :mod:`sanav_mj.control.ocp` with
+
+- hard stage boxes ``A_k p_k <= b_k`` (k = 1..N) built from the safe areas of the corridor
+  (see "Stage boxes" in :class:`SAMPC`), passed as bounds of the position rows of ``g``;
+- the paper's soft penalty ``J_SA(p) = prod_n sum_m [q_SA(n) h_nm(p)]_-^2`` over the safe areas
+  around the horizon (:class:`SafeAreaPenalty`), added for k = 1..N;
+- input bounds, input-rate bounds against the previously applied input, and (by default) a
+  terminal stop ``v_{N-1} = 0``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Callable
+
+import casadi as cs
+import numpy as np
+
+from sanav_mj.control.base import Command, Observation
+from sanav_mj.control.ocp import (
+    BACKENDS,
+    Backend,
+    SolverSettings,
+    TrackingOCP,
+    build_tracking_ocp,
+    make_backend,
+)
+from sanav_mj.control.unicycle import SINC_HALF_ANGLE_MAX, rollout_np
+from sanav_mj.mapping.safe_areas import SafeAreas
+from sanav_mj.planning.reference import Plan, Reference
+from sanav_mj.scene import RobotParams
+
+
+def _positive(name: str, value, allow_none: bool = False) -> None:
+    if value is None and allow_none:
+        return
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise ValueError(f"MPCConfig.{name} must be a positive finite number, got {value!r}")
+
+
+def _weights(name: str, value, n: int) -> None:
+    ok = isinstance(value, tuple) and len(value) == n
+    ok = ok and all(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0 for v in value)
+    if not ok:
+        raise ValueError(f"MPCConfig.{name} must be a tuple of {n} finite numbers >= 0, got {value!r}")
+
+
+@dataclass(frozen=True)
+class MPCConfig:
+    """Settings of the SA-MPC (and of the MPC baselines that share its problem).
+
+    Attributes:
+        horizon: N, number of prediction steps (default 20: 2 s at dt = 0.1 s).
+        dt: [s] prediction and control period (default 0.1 s, the reference's period).
+        q_x: diagonal of Qx, weights of the state error (x [1/m^2], y [1/m^2], yaw [1/rad^2]).
+        q_u: diagonal of Qu, weights of the input error against the reference input
+            (v [s^2/m^2], w [s^2/rad^2]).
+        q_a: diagonal of Qa, weights of the input increment ``u_k - u_{k-1}`` (same units).
+        q_n: diagonal of QN, terminal state error weights (as q_x).
+        q_sa: J_SA priority q_SA(n) [1/m] of each safe-area slot; its length is the number of
+            slots (the safe areas nearest along the corridor that the horizon visits; unused
+            slots are neutral).
+        v_min: [m/s] lowest forward speed (negative: reversing allowed); None -> -0.25 * v_max.
+        v_max: [m/s] top forward speed; None -> 0.6 * robot.v_max.
+        w_max: [rad/s] top yaw rate magnitude; None -> 0.4 * robot.w_max. With the two
+            defaults a wheel never needs more than its top speed (0.6 + 0.4 = 1).
+        a_max: [m/s^2] rate bound of v; None -> robot.a_max.
+        alpha_max: [rad/s^2] rate bound of w; None -> robot.alpha_max.
+        terminal_stop: constrain the last planned speed to zero (gives recursive feasibility
+            of the nominal problem, see :class:`SAMPC`).
+        box_margin: [m] each stage box is shrunk by this much per side (at most a quarter of
+            its width), a margin for model mismatch between samples and the real robot.
+        recovery_stages: stages over which the boxes are relaxed when the measured position
+            is outside its box (noise, slip), shrinking linearly back to zero.
+        solver: ``"panoc"`` (alpaqa ALM + PANOC with L-BFGS, compiled: the paper's solver),
+            ``"pantr"`` (alpaqa ALM + PANTR, Newton trust region, compiled), ``"ipopt"`` or
+            ``"sqp"`` (CasADi sqpmethod + qrqp), see :mod:`sanav_mj.control.ocp`.
+        tol: optimality tolerance of the solver.
+        constraint_tol: [m] allowed constraint violation reported by the solver; a solution
+            violating a constraint by more than 10x this is rejected.
+        max_iter: solver iteration limit (PANOC: per ALM pass).
+        max_outer_iter: ALM outer iteration limit (PANOC).
+        solve_budget_ms: [ms] optional wall-clock limit of one solve; the solver stops and
+            its last iterate is used if it is feasible, else the fallback.
+        accept_inexact: use a non-converged iterate when it is finite and satisfies every
+            constraint (status ``"inexact"``); when False such a step takes the fallback.
+        reference_window: samples ahead of the last progress index searched for the
+            reference sample nearest to the robot; None -> horizon.
+        cache_dir: folder of compiled solver code; None -> ``$SANAV_MJ_CACHE`` or
+            ``~/.cache/sanav-mj``.
+    """
+
+    horizon: int = 20
+    dt: float = 0.1
+    q_x: tuple[float, float, float] = (10.0, 10.0, 1.0)
+    q_u: tuple[float, float] = (1.0, 0.1)
+    q_a: tuple[float, float] = (2.0, 0.5)
+    q_n: tuple[float, float, float] = (40.0, 40.0, 2.0)
+    q_sa: tuple[float, ...] = (5.0, 5.0, 5.0)
+    v_min: float | None = None
+    v_max: float | None = None
+    w_max: float | None = None
+    a_max: float | None = None
+    alpha_max: float | None = None
+    terminal_stop: bool = True
+    box_margin: float = 0.02
+    recovery_stages: int = 5
+    solver: str = "panoc"
+    tol: float = 1e-4
+    constraint_tol: float = 1e-4
+    max_iter: int = 300
+    max_outer_iter: int = 20
+    solve_budget_ms: float | None = None
+    accept_inexact: bool = True
+    reference_window: int | None = None
+    cache_dir: str | None = None
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.horizon, int) and 2 <= self.horizon <= 200):
+            raise ValueError(f"MPCConfig.horizon must be an integer in [2, 200], got {self.horizon!r}")
+        _positive("dt", self.dt)
+        _weights("q_x", self.q_x, 3)
+        _weights("q_u", self.q_u, 2)
+        _weights("q_a", self.q_a, 2)
+        _weights("q_n", self.q_n, 3)
+        if not (isinstance(self.q_sa, tuple) and 1 <= len(self.q_sa) <= 8):
+            raise ValueError(f"MPCConfig.q_sa must be a tuple of 1 to 8 priorities, got {self.q_sa!r}")
+        _weights("q_sa", self.q_sa, len(self.q_sa))
+        for name in ("v_max", "w_max", "a_max", "alpha_max", "tol", "constraint_tol", "solve_budget_ms"):
+            _positive(name, getattr(self, name), allow_none=True)
+        if self.v_min is not None and not (math.isfinite(self.v_min) and self.v_min <= 0):
+            raise ValueError(f"MPCConfig.v_min must be a finite number <= 0 m/s, got {self.v_min!r}")
+        if not (isinstance(self.box_margin, (int, float)) and 0 <= self.box_margin < 1):
+            raise ValueError(f"MPCConfig.box_margin must be in [0, 1) m, got {self.box_margin!r}")
+        if not (isinstance(self.recovery_stages, int) and 1 <= self.recovery_stages <= self.horizon):
+            raise ValueError(
+                f"MPCConfig.recovery_stages must be an integer in [1, horizon], got {self.recovery_stages!r}"
+            )
+        if self.solver not in BACKENDS:
+            raise ValueError(f"MPCConfig.solver must be one of {sorted(BACKENDS)}, got {self.solver!r}")
+        for name in ("max_iter", "max_outer_iter"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and v >= 1):
+                raise ValueError(f"MPCConfig.{name} must be an integer >= 1, got {v!r}")
+        if self.reference_window is not None and not (
+            isinstance(self.reference_window, int) and self.reference_window >= 1
+        ):
+            raise ValueError(f"MPCConfig.reference_window must be an integer >= 1 or None, got {self.reference_window!r}")
+
+    def replace(self, **changes) -> MPCConfig:
+        """A copy with some fields changed (validated again)."""
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        values.update(changes)
+        return MPCConfig(**values)
+
+    def limits(self, robot: RobotParams) -> InputLimits:
+        """Resolve the input and rate bounds against the robot's parameters."""
+        v_max = self.v_max if self.v_max is not None else 0.6 * robot.v_max
+        v_min = self.v_min if self.v_min is not None else -0.25 * v_max
+        w_max = self.w_max if self.w_max is not None else 0.4 * robot.w_max
+        a_max = self.a_max if self.a_max is not None else robot.a_max
+        alpha_max = self.alpha_max if self.alpha_max is not None else robot.alpha_max
+        if w_max * self.dt / 2 > SINC_HALF_ANGLE_MAX:
+            raise ValueError(
+                f"w_max * dt / 2 must be <= {SINC_HALF_ANGLE_MAX} rad for the model, got {w_max * self.dt / 2!r}"
+            )
+        for name, v in (("v_max", v_max), ("w_max", w_max), ("a_max", a_max), ("alpha_max", alpha_max)):
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"resolved {name} must be positive and finite, got {v!r}")
+        return InputLimits(v_min, v_max, w_max, a_max, alpha_max)
+
+    def solver_settings(self) -> SolverSettings:
+        return SolverSettings(
+            tol=self.tol,
+            constraint_tol=self.constraint_tol,
+            max_iter=self.max_iter,
+            max_outer_iter=self.max_outer_iter,
+            budget_ms=self.solve_budget_ms,
+        )
+
+
+@dataclass(frozen=True)
+class InputLimits:
+    """Resolved bounds: v in [v_min, v_max] [m/s], |w| <= w_max [rad/s], rates a_max [m/s^2], alpha_max [rad/s^2]."""
+
+    v_min: float
+    v_max: float
+    w_max: float
+    a_max: float
+    alpha_max: float
+
+    def lower(self) -> np.ndarray:
+        return np.array([self.v_min, -self.w_max])
+
+    def upper(self) -> np.ndarray:
+        return np.array([self.v_max, self.w_max])
+
+    def rate(self) -> np.ndarray:
+        """(2,) [m/s^2, rad/s^2] rate bounds."""
+        return np.array([self.a_max, self.alpha_max])
+
+
+@dataclass(frozen=True)
+class SafeAreaPenalty:
+    """The paper's soft safe-area penalty as a :class:`~sanav_mj.control.ocp.PositionCost`.
+
+    ``J_SA(p) = prod_n (a_n sum_m [q_n h_nm(p)]_-^2 + (1 - a_n))`` over ``n_slots`` rectangle
+    slots, with ``h_n = (px - xmin, py - ymin, xmax - px, ymax - py)`` [m], ``[h]_- = min(0, h)``,
+    priority ``q_n`` [1/m] and activity flag ``a_n`` in {0, 1}. An active slot is the paper's
+    factor; an inactive slot is the neutral factor 1 (padding: repeating a rectangle instead
+    would raise its factor to a power and flatten the penalty near its boundary). Zero
+    whenever ``p`` is inside any active rectangle. Parameters per slot: ``xmin, ymin, xmax,
+    ymax, q, a`` (6,), slots concatenated.
+    """
+
+    n_slots: int
+
+    @property
+    def key(self) -> str:
+        return f"jsa{self.n_slots}"
+
+    @property
+    def n_params(self) -> int:
+        return 6 * self.n_slots
+
+    def expr(self, p, theta):
+        out = 1
+        for n in range(self.n_slots):
+            r = theta[6 * n : 6 * n + 6]
+            h = cs.vertcat(p[0] - r[0], p[1] - r[1], r[2] - p[0], r[3] - p[1])
+            neg = cs.fmin(0, r[4] * h)
+            out = out * (r[5] * cs.sumsqr(neg) + (1 - r[5]))
+        return out
+
+    @staticmethod
+    def value_np(p: np.ndarray, rects: np.ndarray, q: np.ndarray) -> float:
+        """NumPy value of the penalty at ``p`` (2,) for active ``rects`` (n, 4) [m], priorities ``q`` (n,)."""
+        h = np.stack((p[0] - rects[:, 0], p[1] - rects[:, 1], rects[:, 2] - p[0], rects[:, 3] - p[1]), axis=1)
+        neg = np.minimum(0.0, q[:, None] * h)
+        return float(np.prod(np.sum(neg * neg, axis=1)))
+
+
+# --------------------------------------------------------------------------------------
+# Corridor chain: safe areas and the bridge boxes between consecutive ones
+
+
+def box_intersection(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Intersection of boxes ``xmin, ymin, xmax, ymax`` (..., 4); empty when min > max."""
+    return np.concatenate((np.maximum(a[..., :2], b[..., :2]), np.minimum(a[..., 2:], b[..., 2:])), axis=-1)
+
+
+def shrink_box(box: np.ndarray, margin: float) -> np.ndarray:
+    """Shrink boxes (..., 4) by ``margin`` [m] per side, at most a quarter of each width."""
+    box = np.asarray(box, dtype=float)
+    w = box[..., 2:] - box[..., :2]
+    m = np.minimum(margin, 0.25 * np.maximum(w, 0.0))
+    return np.concatenate((box[..., :2] + m, box[..., 2:] - m), axis=-1)
+
+
+def bridge_box(a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+    """A convex box inside ``a ∪ b`` whose intersections with ``a`` and with ``b`` have positive area.
+
+    If the rectangles overlap with positive area the bridge is their intersection. If they
+    only share a boundary segment (a portal), e.g. the vertical segment ``x = c``,
+    ``y in [y0, y1]``, the bridge is ``[min(xmin), max(xmax)] x [y0, y1]``: every point of it
+    lies in ``a`` (left of c) or ``b`` (right of c) because both contain the band
+    ``y in [y0, y1]`` over their whole x extent.
+
+    Args:
+        a, b: (4,) [m] rectangles ``xmin, ymin, xmax, ymax``.
+        tol: [m] tolerance for touching edges.
+
+    Raises:
+        ValueError: when the rectangles do not share a boundary segment of positive length.
+    """
+    inter = box_intersection(a, b)
+    w = inter[2:] - inter[:2]
+    if np.all(w > tol):
+        return inter
+    if abs(w[0]) <= tol and w[1] > tol:  # vertical portal
+        return np.array([min(a[0], b[0]), inter[1], max(a[2], b[2]), inter[3]])
+    if abs(w[1]) <= tol and w[0] > tol:  # horizontal portal
+        return np.array([inter[0], min(a[1], b[1]), inter[2], max(a[3], b[3])])
+    raise ValueError(f"safe areas {a.tolist()} and {b.tolist()} share no boundary segment of positive length")
+
+
+@dataclass(frozen=True)
+class CorridorChain:
+    """The chain ``R_0, B_01, R_1, B_12, ..., R_{C-1}`` of convex boxes along a corridor.
+
+    Consecutive members intersect with positive area and every member lies inside the union
+    of the corridor's safe areas.
+
+    Attributes:
+        boxes: (L,) x 4 [m] member boxes, L = 2C - 1.
+        rect_pair: (L, 2) int safe-area indices of each member: ``(r, r)`` for a safe area,
+            ``(r_i, r_{i+1})`` for a bridge.
+        stay: (L, 4) [m] stage box when staying on member j: ``shrink(C_j)``.
+        advance: (L, 4) [m] stage box when advancing onto member j: ``shrink(C_{j-1} ∩ C_j)``
+            (row 0 unused).
+    """
+
+    boxes: np.ndarray
+    rect_pair: np.ndarray
+    stay: np.ndarray
+    advance: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.boxes.shape[0])
+
+    @staticmethod
+    def build(areas: SafeAreas, corridor: np.ndarray, margin: float = 0.0) -> CorridorChain:
+        """Chain of the corridor ``(C,)`` int indices into ``areas.rects``; boxes shrunk by ``margin`` [m]."""
+        rects = np.asarray(areas.rects, dtype=float)
+        corridor = np.asarray(corridor, dtype=int).ravel()
+        if corridor.size == 0:
+            raise ValueError("plan.corridor must hold at least one safe-area index, got an empty array")
+        if corridor.min() < 0 or corridor.max() >= len(rects):
+            raise ValueError(f"plan.corridor indices must be in [0, {len(rects)}), got {corridor.tolist()}")
+        boxes, pairs = [rects[corridor[0]]], [(corridor[0], corridor[0])]
+        for i, j in zip(corridor[:-1], corridor[1:]):
+            boxes.append(bridge_box(rects[i], rects[j]))
+            pairs.append((i, j))
+            boxes.append(rects[j])
+            pairs.append((j, j))
+        boxes = np.array(boxes)
+        stay = shrink_box(boxes, margin)
+        adv = np.empty_like(boxes)
+        adv[0] = stay[0]
+        adv[1:] = shrink_box(box_intersection(boxes[:-1], boxes[1:]), margin)
+        return CorridorChain(boxes, np.array(pairs, dtype=int), stay, adv)
+
+
+def _outside(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Euclidean distance (P, L) [m] from points (P, 2) to boxes (L, 4) (0 inside)."""
+    lo = boxes[None, :, :2] - points[:, None, :]
+    hi = points[:, None, :] - boxes[None, :, 2:]
+    d = np.maximum(np.maximum(lo, hi), 0.0)
+    return np.sqrt(np.sum(d * d, axis=-1))
+
+
+def assign_stages(
+    chain: CorridorChain,
+    guess: np.ndarray,
+    first_candidates: np.ndarray | None = None,
+    tol: float = 1e-6,
+    reanchor_distance: float = 0.3,
+) -> np.ndarray:
+    """Monotone assignment of chain members to the stages 0..N of a guessed trajectory.
+
+    Finds ``s`` (N+1,) with ``s(k) - s(k-1)`` in {0, 1} minimising the summed distance of
+    each guessed position ``g_k`` outside its stage box (``stay[s(k)]`` if ``s(k) = s(k-1)``,
+    else ``advance[s(k)]``; k = 0 uses ``stay[s(0)]``), distances below ``tol`` counting as
+    zero; between assignments whose violations differ by less than about 1e-4 m it takes
+    the larger ``sum_k s(k)`` (advance as early as the guess allows), so an assignment
+    under which the guess is feasible always beats one under which it is not. Dynamic
+    programming over (stage, member) restricted to the reachable band, O(N L).
+
+    Args:
+        chain: the corridor chain.
+        guess: (N+1, 2) [m] guessed positions, ``guess[0]`` the measured one.
+        first_candidates: (L,) bool, members allowed for ``s(0)`` (None: all). Ignored when
+            ``guess[0]`` is farther than ``reanchor_distance`` [m] from all of them.
+        tol: [m] distances below this count as zero.
+        reanchor_distance: [m] see ``first_candidates``.
+
+    Returns:
+        (N+1,) int chain member per stage.
+    """
+    n1 = guess.shape[0]
+    L = len(chain)
+    big = 1e7  # [1/m]: violation weight against the progress count (<= (N+1) L)
+    v = _outside(guess, np.concatenate((chain.stay, chain.advance)))
+    v[v < tol] = 0.0
+    idx = np.arange(L, dtype=float)
+    c_stay = (v[:, :L] * big - idx).tolist()
+    c_adv = (v[:, L:] * big - idx).tolist()
+    inf = math.inf
+    key = list(c_stay[0])
+    if first_candidates is not None and np.min(v[0, :L][first_candidates]) <= reanchor_distance:
+        key = [c if ok else inf for c, ok in zip(key, first_candidates.tolist())]
+    finite = [j for j in range(L) if key[j] < inf]
+    lo, hi = finite[0], finite[-1]
+    back = [[False] * L for _ in range(n1)]
+    for k in range(1, n1):
+        hi_new = min(L - 1, hi + 1)
+        row_s, row_a, bk = c_stay[k], c_adv[k], back[k]
+        new = [inf] * L
+        prev = inf
+        for j in range(lo, hi_new + 1):
+            cur = key[j]
+            st = cur + row_s[j]
+            ad = prev + row_a[j]
+            if ad < st:
+                new[j] = ad
+                bk[j] = True
+            else:
+                new[j] = st
+            prev = cur
+        key = new
+        hi = hi_new
+    j = min(range(lo, hi + 1), key=key.__getitem__)
+    s = np.empty(n1, dtype=int)
+    for k in range(n1 - 1, 0, -1):
+        s[k] = j
+        if back[k][j]:
+            j -= 1
+    s[0] = j
+    return s
+
+
+def stage_boxes(chain: CorridorChain, s: np.ndarray) -> np.ndarray:
+    """Stage boxes (N+1, 4) [m] of an assignment ``s`` (N+1,): ``shrink(C_{s(k-1)} ∩ C_{s(k)})``."""
+    out = chain.stay[s].copy()
+    adv = np.flatnonzero(np.diff(s) > 0) + 1
+    out[adv] = chain.advance[s[adv]]
+    return out
+
+
+def box_slack(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Smallest slack ``b - a^T p`` [m] of each point (K, 2) in its box (K, 4); negative outside."""
+    return np.min(np.concatenate((points - boxes[:, :2], boxes[:, 2:] - points), axis=1), axis=1)
+
+
+# --------------------------------------------------------------------------------------
+# Process-wide cache of built back-ends (the problem structure is the key).
+
+_BACKENDS: dict[tuple, Backend] = {}
+
+
+def get_backend(ocp: TrackingOCP, solver: str, settings: SolverSettings, cache_dir: Path | None) -> Backend:
+    """Return the back-end for this problem structure and settings, building it on first use.
+
+    Back-ends hold no episode state (every solve sets all parameters and bounds), so the
+    controllers of one process share them; they are not safe for concurrent threads.
+    """
+    key = (ocp.key, solver, settings, str(cache_dir))
+    be = _BACKENDS.get(key)
+    if be is None:
+        be = make_backend(solver, ocp, settings, cache_dir)
+        _BACKENDS[key] = be
+    return be
+
+
+def _resample(ref: Reference, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Reference states (K', 3) and inputs (K', 2) resampled to period ``dt`` [s] (linear)."""
+    k = len(ref)
+    if abs(ref.dt - dt) <= 1e-9 * dt:
+        return np.asarray(ref.states, float), np.asarray(ref.inputs, float)
+    t = np.arange(k) * ref.dt
+    tn = np.arange(0.0, t[-1] + 1e-9, dt)
+    states = np.stack([np.interp(tn, t, ref.states[:, i]) for i in range(3)], axis=1)
+    inputs = np.stack([np.interp(tn, t, ref.inputs[:, i]) for i in range(2)], axis=1)
+    return states, inputs
+
+
+@dataclass
+class _Plan:
+    """The active input plan: inputs (N, 2), the next index to apply, multipliers to reuse."""
+
+    u: np.ndarray
+    next: int
+    y: np.ndarray | None = None
+    y_z: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class StepInfo:
+    """The problem data of the last step (for inspection, recording and tests).
+
+    Attributes:
+        assignment: (N+1,) int chain member of each stage.
+        boxes: (N+1, 4) [m] stage boxes as imposed (shrunk, relaxed); row 0 is the box of
+            the measured position (not a constraint).
+        guess: (N, 2) [m/s, rad/s] warm-start inputs (the shifted previous plan).
+        guess_states: (N+1, 3) [m, m, rad] the warm start rolled out from the measured state.
+        x_ref: (N+1, 3) [m, m, rad] reference states over the horizon.
+        u_ref: (N, 2) [m/s, rad/s] reference inputs.
+        u_prev: (2,) [m/s, rad/s] previously applied input.
+        input_lower, input_upper: (N, 2) input bounds including the rate bound of u_0 and
+            the terminal stop.
+        rate_step: (2,) [m/s, rad/s] largest change of each input per step.
+    """
+
+    assignment: np.ndarray
+    boxes: np.ndarray
+    guess: np.ndarray
+    guess_states: np.ndarray
+    x_ref: np.ndarray
+    u_ref: np.ndarray
+    u_prev: np.ndarray
+    input_lower: np.ndarray
+    input_upper: np.ndarray
+    rate_step: np.ndarray
+
+
+@dataclass
+class SAMPCStats:
+    """Counters of one episode: steps per status and failures."""
+
+    counts: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def failures(self) -> int:
+        """Steps whose command came from a fallback."""
+        return sum(v for k, v in self.counts.items() if k.startswith("fallback"))
+
+
+class SAMPC:
+    """Safe-area MPC controller (the paper's Sec. III-D/E) implementing the Controller protocol.
+
+    Each step: find the progress along the reference, build the stage boxes, solve the NLP
+    (:mod:`sanav_mj.control.ocp`) warm-started from the shifted previous plan, check the
+    result, apply the first input (or a fallback).
+
+    **Stage boxes.** The corridor ``c_0..c_{C-1}`` gives the chain ``R_0, B_01, R_1, ...``
+    (:class:`CorridorChain`) where ``B_ij`` is a bridge box inside ``R_i ∪ R_j`` crossing
+    their common portal; consecutive members intersect with positive area. A monotone
+    assignment ``s(k)``, ``s(k) - s(k-1) in {0, 1}``, of members to stages gives the stage sets
+    ``S_k = C_{s(k-1)} ∩ C_{s(k)}`` (``S_k = C_{s(k)}`` when ``s`` stays); the constraint
+    ``A_k p_k <= b_k`` is ``p_k in shrink(S_k)`` for k = 1..N, each box shrunk by
+    ``box_margin`` (at most a quarter of its width). ``s`` is chosen by
+    :func:`assign_stages` for the guessed trajectory (the shifted previous plan rolled out
+    from the measured state): the assignment under which the guess violates the boxes
+    least, advancing as early as it allows.
+
+    **Safety between samples.** ``p_k in S_k ⊂ C_{s(k)}`` and ``p_{k+1} in S_{k+1} ⊂ C_{s(k)}``,
+    so the chord ``[p_k, p_{k+1}]`` lies in the convex member ``C_{s(k)}``, which lies in the
+    union of safe areas. The nominal robot drives an arc, not the chord; the arc stays within
+    ``|v w| dt^2 / 8`` of it (:func:`~sanav_mj.control.unicycle.arc_chord_deviation`, 1.2 mm
+    at 0.6 m/s and 2 rad/s with dt = 0.1 s), which the obstacle inflation margin of the
+    safe-area map has to cover. For k = 0 the position is the measurement, a parameter: if
+    it lies within ``S_0 = shrink(C_{s(0)})`` the argument holds from the first sample on.
+
+    **Measured position outside its box** (noise, slip, mismatch): p_0 cannot be constrained,
+    and requiring ``p_1`` inside a box the robot cannot reach in one step would make the
+    problem infeasible. Each side of the boxes of stages k = 1..K (K = ``recovery_stages``)
+    is widened by the amount p_0 lies beyond that side of ``S_0``, times ``1 - (k-1)/K``,
+    so the plan must come back within K steps; J_SA (zero inside every corridor area)
+    pulls those stages back in. If the robot cannot come back that fast the solve fails and
+    the fallback takes over.
+
+    **Recursive feasibility** (nominal model, no disturbance, converged solves, the default
+    ``terminal_stop``): let ``u*`` be the previous plan with positions ``p*_0..p*_N`` and
+    assignment ``s*``. The next measured state is ``x*_1``. The shifted plan
+    ``(u*_1, ..., u*_{N-1}, (0, w'))``, with ``w'`` the last yaw rate brought towards 0 by one
+    rate step, satisfies the input bounds, the rate bounds (same increments; ``u*_1 - u*_0``
+    against the new previous input ``u*_0``) and the terminal stop (its last speed is 0). Its
+    positions are ``p*_1..p*_N, p*_N`` (``v*_{N-1} = 0``, so the last step only turns), which
+    satisfy the boxes of the shifted assignment ``s*(1..N), s*(N)``: that assignment has zero
+    violation, so the minimiser chosen by :func:`assign_stages` also has zero violation and
+    the shifted plan is feasible for the new problem. Without ``terminal_stop`` the last
+    shifted position may leave the last box and feasibility is not guaranteed. With model
+    mismatch, noise or an inexact solve none of this is guaranteed; the relaxation above
+    and the fallback cover those cases.
+
+    **Fallback.** A solve is rejected when the back-end does not converge (unless
+    ``accept_inexact`` and the iterate satisfies every constraint), returns non-finite
+    values, or the rolled-out plan violates a constraint by more than 10x
+    ``constraint_tol``. Then the next input of the active (previous) plan is applied
+    (status ``"fallback_shift"``; the active plan ends stopped under ``terminal_stop``, so
+    following it nominally stays in its boxes); once it is exhausted the robot brakes at the
+    rate limits (``"fallback_stop"``). Commands are always finite.
+
+    Attributes:
+        name: ``"sa-mpc"``.
+        dt: [s] control period.
+        needs_ranges: False.
+        config, robot, limits: settings and resolved input limits.
+        chain: the corridor chain.
+        stats: per-episode status counts (``stats.failures`` counts fallback steps).
+        last: :class:`StepInfo` of the last step that reached the solver stage, or None.
+        last_failure_reason: why the last fallback was taken, or None.
+        build_s: [s] time spent building this controller (including the solver back-end).
+    """
+
+    name = "sa-mpc"
+    needs_ranges = False
+
+    def __init__(
+        self,
+        robot: RobotParams,
+        areas: SafeAreas,
+        plan: Plan,
+        config: MPCConfig = MPCConfig(),
+        *,
+        failure_injector: Callable[[int], bool] | None = None,
+    ):
+        """Build the controller (and its solver, once per process).
+
+        Args:
+            robot: nominal robot parameters (input and rate bounds by default).
+            areas: the safe areas.
+            plan: a successful plan (corridor and reference).
+            config: settings.
+            failure_injector: test hook called with the step index; returning True makes
+                that step's solve count as failed.
+
+        Raises:
+            ValueError: the plan failed or has no reference, or the corridor is not a chain
+                of adjacent safe areas.
+        """
+        t0 = time.perf_counter()
+        if not plan.ok or plan.reference is None:
+            raise ValueError(f"plan must be successful with a reference, got ok={plan.ok} reason={plan.reason!r}")
+        if len(plan.reference) < 1:
+            raise ValueError("plan.reference must hold at least one sample")
+        self.config = config
+        self.robot = robot
+        self.dt = float(config.dt)
+        self.limits = config.limits(robot)
+        self.areas = areas
+        self._rects = np.asarray(areas.rects, dtype=float)
+        self.plan = plan
+        self.chain = CorridorChain.build(areas, plan.corridor, config.box_margin)
+        self.ref_states, self.ref_inputs = _resample(plan.reference, self.dt)
+        self.failure_injector = failure_injector
+        n = config.horizon
+        self.N = n
+        self.penalty = SafeAreaPenalty(len(config.q_sa))
+        self.ocp = build_tracking_ocp(n, self.dt, self.penalty, position_constraints=True)
+        cache = Path(config.cache_dir) if config.cache_dir else None
+        self.backend = get_backend(self.ocp, config.solver, config.solver_settings(), cache)
+        # Constant parts of the problem data.
+        self._z_lb = np.tile(self.limits.lower(), n)
+        self._z_ub = np.tile(self.limits.upper(), n)
+        if config.terminal_stop:
+            self._z_lb[-2] = 0.0
+            self._z_ub[-2] = 0.0
+        self._rate_step = self.limits.rate() * self.dt
+        self._rate_lb = np.tile(-self._rate_step, n - 1)
+        self._rate_ub = np.tile(self._rate_step, n - 1)
+        self._weights = tuple(np.asarray(w, float) for w in (config.q_x, config.q_u, config.q_a, config.q_n))
+        self._q_sa = np.asarray(config.q_sa, float)
+        self._check_tol = 10.0 * config.constraint_tol + 1e-9
+        self._sa_cache: dict[tuple[int, int], np.ndarray] = {}
+        sl = self.ocp.layout.slices()
+        self._p_buf = np.zeros(self.ocp.layout.size)
+        for name, w in zip(("q_x", "q_u", "q_a", "q_n"), self._weights):
+            self._p_buf[sl[name]] = w
+        self._p_slices = sl
+        self.reset(np.array([*self.ref_states[0, :2], self.ref_states[0, 2]]))
+        self.build_s = time.perf_counter() - t0
+
+    # ---------------------------------------------------------------- episode state
+
+    def reset(self, pose: np.ndarray) -> None:
+        """Start a new episode at ``pose`` (3,) [m, m, rad]; the robot is assumed at rest."""
+        pose = np.asarray(pose, dtype=float).reshape(3)
+        self._u_prev = np.zeros(2)
+        self._active: _Plan | None = None
+        self._s_prev: np.ndarray | None = None
+        self._step_index = 0
+        self.stats = SAMPCStats()
+        self.last_failure_reason: str | None = None
+        self.last: StepInfo | None = None
+        w = min(len(self.ref_states), 2 * self.N + 1)
+        d = np.hypot(*(self.ref_states[:w, :2] - pose[:2]).T)
+        self._ref_index = int(np.argmin(d))
+
+    # ---------------------------------------------------------------- pieces of a step
+
+    def _progress(self, pos: np.ndarray) -> int:
+        """Index of the reference sample nearest ``pos`` in the window ahead of the last one."""
+        k = len(self.ref_states)
+        win = self.config.reference_window or self.N
+        lo = self._ref_index
+        hi = min(k, lo + win + 1)
+        seg = self.ref_states[lo:hi, :2] - pos
+        i = lo + int(np.argmin(np.einsum("ij,ij->i", seg, seg)))
+        self._ref_index = i
+        return i
+
+    def horizon_reference(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Reference states (N+1, 3) and inputs (N, 2) for the horizon starting at ``pose``.
+
+        The samples start at the progress index; past the end the last state is held with
+        zero inputs. The yaw is shifted by a multiple of 2 pi so that its first sample is
+        within pi of the measured yaw (the reference yaw is unwrapped, the measured one is
+        not), which makes the yaw error the wrapped one.
+        """
+        i = self._progress(pose[:2])
+        k = len(self.ref_states)
+        idx = np.minimum(np.arange(i, i + self.N + 1), k - 1)
+        xr = self.ref_states[idx].copy()
+        ur = self.ref_inputs[idx[:-1]].copy()
+        ur[idx[:-1] >= k - 1] = 0.0
+        xr[:, 2] += 2 * np.pi * np.round((pose[2] - xr[0, 2]) / (2 * np.pi))
+        return xr, ur
+
+    def _guess_inputs(self) -> np.ndarray:
+        """(N, 2) warm start: the rest of the active plan, then braking towards (0, 0)."""
+        n = self.N
+        if self._active is None:
+            return np.zeros((n, 2))
+        rest = self._active.u[self._active.next :]
+        out = np.empty((n, 2))
+        m = min(len(rest), n)
+        out[:m] = rest[:m]
+        last = rest[-1] if len(rest) else self._u_prev
+        for k in range(m, n):
+            last = np.sign(last) * np.maximum(np.abs(last) - self._rate_step, 0.0)
+            out[k] = last
+        return out
+
+    def _first_candidates(self) -> np.ndarray | None:
+        """Members allowed for stage 0: within two of the previous anchor (None at a cold start)."""
+        if self._s_prev is None:
+            return None
+        L = len(self.chain)
+        anchor = int(self._s_prev[1])
+        cand = np.zeros(L, dtype=bool)
+        cand[max(0, anchor - 2) : min(L, anchor + 3)] = True
+        return cand
+
+    def _relaxed_boxes(self, boxes: np.ndarray, p0: np.ndarray) -> np.ndarray:
+        """Widen the boxes of stages 1..K by how far p0 lies outside the stage-0 box."""
+        out = boxes.copy()
+        below = np.maximum(boxes[0, :2] - p0, 0.0)
+        above = np.maximum(p0 - boxes[0, 2:], 0.0)
+        if below.any() or above.any():
+            kr = self.config.recovery_stages
+            k = np.arange(1, kr + 1)
+            f = (1.0 - (k - 1) / kr)[:, None]
+            out[1 : kr + 1, :2] -= f * below
+            out[1 : kr + 1, 2:] += f * above
+        return out
+
+    def _sa_params(self, s: np.ndarray) -> np.ndarray:
+        """J_SA slot parameters (6 * slots,): the distinct safe areas of members s(0)..s(N), in order."""
+        key = (int(s[0]), int(s[-1]))
+        theta = self._sa_cache.get(key)
+        if theta is None:
+            slots = self.penalty.n_slots
+            ids: list[int] = []
+            for pair in self.chain.rect_pair[key[0] : key[1] + 1]:
+                for r in pair:
+                    if int(r) not in ids:
+                        ids.append(int(r))
+            ids = ids[:slots]
+            theta = np.zeros((slots, 6))
+            theta[: len(ids), :4] = shrink_box(self._rects[ids], self.config.box_margin)
+            theta[: len(ids), 4] = self._q_sa[: len(ids)]
+            theta[: len(ids), 5] = 1.0
+            theta[len(ids) :, 2:4] = 1.0  # inactive slots: any finite rectangle
+            theta = theta.ravel()
+            self._sa_cache[key] = theta
+        return theta
+
+    def _rect_ids(self, s: np.ndarray, pos: np.ndarray) -> np.ndarray:
+        """Safe-area index for each stage: of the member's area(s), the one containing the position best."""
+        pair = self.chain.rect_pair[s]
+        slack_a = box_slack(pos, self._rects[pair[:, 0]])
+        slack_b = box_slack(pos, self._rects[pair[:, 1]])
+        return np.where(slack_a >= slack_b, pair[:, 0], pair[:, 1])
+
+    def _violation(self, z: np.ndarray, xs: np.ndarray, g_lb: np.ndarray, g_ub: np.ndarray, z_lb, z_ub) -> float:
+        """Largest violation of any constraint by the plan ``z`` with rolled-out states ``xs``."""
+        u = z.reshape(-1, 2)
+        g = np.concatenate((xs[1:, :2].ravel(), np.diff(u, axis=0).ravel()))
+        v = max(
+            float(np.max(g_lb - g, initial=0.0)),
+            float(np.max(g - g_ub, initial=0.0)),
+            float(np.max(z_lb - z, initial=0.0)),
+            float(np.max(z - z_ub, initial=0.0)),
+        )
+        return v
+
+    # ---------------------------------------------------------------- the step
+
+    def step(self, obs: Observation) -> Command:
+        """Compute the command for the next period from the measured pose (wall time in ``solve_ms``)."""
+        t0 = time.perf_counter()
+        n = self.N
+        k_step = self._step_index
+        self._step_index += 1
+        x0 = np.asarray(obs.pose, dtype=float).reshape(3)
+        if not np.all(np.isfinite(x0)):
+            return self._fallback(x0, t0, None, None, "bad_measurement")
+
+        xr, ur = self.horizon_reference(x0)
+        u_guess = self._guess_inputs()
+        guess = rollout_np(x0, u_guess, self.dt)
+        s = assign_stages(self.chain, guess[:, :2], self._first_candidates(), tol=self._check_tol)
+        boxes = stage_boxes(self.chain, s)
+        boxes_c = self._relaxed_boxes(boxes, x0[:2])
+
+        z_lb = self._z_lb.copy()
+        z_ub = self._z_ub.copy()
+        z_lb[:2] = np.maximum(z_lb[:2], self._u_prev - self._rate_step)
+        z_ub[:2] = np.minimum(z_ub[:2], self._u_prev + self._rate_step)
+        g_lb = np.concatenate((boxes_c[1:, :2].ravel(), self._rate_lb))
+        g_ub = np.concatenate((boxes_c[1:, 2:].ravel(), self._rate_ub))
+        p = self._p_buf.copy()
+        sl = self._p_slices
+        p[sl["x0"]] = x0
+        p[sl["u_prev"]] = self._u_prev
+        p[sl["x_ref"]] = xr.ravel()
+        p[sl["u_ref"]] = ur.ravel()
+        p[sl["extra"]] = self._sa_params(s)
+        z0 = np.clip(u_guess.ravel(), z_lb, z_ub)
+        self.last = StepInfo(
+            s, boxes_c, u_guess, guess, xr, ur, self._u_prev.copy(), z_lb.reshape(n, 2), z_ub.reshape(n, 2), self._rate_step
+        )
+        y0 = self._shifted_multipliers()
+        y_z0 = None
+        if self._active is not None and self._active.y_z is not None:
+            y_z0 = np.concatenate((self._active.y_z[2:], np.zeros(2)))
+
+        if self.failure_injector is not None and self.failure_injector(k_step):
+            return self._fallback(x0, t0, s, boxes_c, "injected")
+        res = self.backend.solve(p, z_lb, z_ub, g_lb, g_ub, z0, y0, y_z0)
+        z = res.z
+        if not np.all(np.isfinite(z)):
+            return self._fallback(x0, t0, s, boxes_c, f"nonfinite:{res.status}")
+        xs = rollout_np(x0, z.reshape(n, 2), self.dt)
+        viol = self._violation(z, xs, g_lb, g_ub, z_lb, z_ub)
+        feasible = viol <= self._check_tol
+        if res.converged and feasible:
+            status = "ok"
+        elif self.config.accept_inexact and feasible:
+            status = "inexact"
+        else:
+            return self._fallback(x0, t0, s, boxes_c, f"rejected:{res.status}:viol={viol:.2e}")
+        u = z.reshape(n, 2)
+        self._active = _Plan(u.copy(), 1, np.asarray(res.y, float), res.y_z)
+        self._s_prev = s
+        self._u_prev = u[0].copy()
+        self._count(status)
+        margins = np.concatenate(([box_slack(x0[None, :2], boxes_c[:1])[0]], box_slack(xs[1:, :2], boxes_c[1:])))
+        return Command(
+            v=float(u[0, 0]),
+            w=float(u[0, 1]),
+            solve_ms=(time.perf_counter() - t0) * 1e3,
+            status=status,
+            ok=True,
+            predicted=xs,
+            rect_ids=self._rect_ids(s, xs[:, :2]),
+            margins=margins,
+        )
+
+    def _shifted_multipliers(self) -> np.ndarray | None:
+        """Multipliers of the active plan shifted by one stage (positions and rates)."""
+        a = self._active
+        if a is None or a.y is None or a.next != 1:
+            return None
+        n = self.N
+        y = a.y
+        pos = y[: 2 * n].reshape(n, 2)
+        rate = y[2 * n :].reshape(n - 1, 2)
+        pos = np.concatenate((pos[1:], pos[-1:]))
+        rate = np.concatenate((rate[1:], np.zeros((1, 2))))
+        return np.concatenate((pos.ravel(), rate.ravel()))
+
+    def _count(self, status: str) -> None:
+        self.stats.counts[status] = self.stats.counts.get(status, 0) + 1
+
+    def _fallback(self, x0, t0, s, boxes, reason: str) -> Command:
+        """Apply the next input of the active plan, or brake at the rate limits."""
+        a = self._active
+        if a is not None and a.next < len(a.u):
+            u = a.u[a.next].copy()
+            a.next += 1
+            a.y = None
+            a.y_z = None
+            status = "fallback_shift"
+            rest = a.u[a.next - 1 :]
+        else:
+            u = np.sign(self._u_prev) * np.maximum(np.abs(self._u_prev) - self._rate_step, 0.0)
+            status = "fallback_stop"
+            self._active = None
+            rest = u[None, :]
+        u = np.clip(np.nan_to_num(u), self.limits.lower(), self.limits.upper())
+        self._u_prev = u
+        if s is not None:
+            self._s_prev = s
+        self._count(status)
+        self.last_failure_reason = reason
+        predicted = None
+        if np.all(np.isfinite(x0)):
+            predicted = rollout_np(x0, rest, self.dt)
+        return Command(
+            v=float(u[0]),
+            w=float(u[1]),
+            solve_ms=(time.perf_counter() - t0) * 1e3,
+            status=status,
+            ok=False,
+            predicted=predicted,
+            rect_ids=None,
+            margins=None,
+        )

@@ -1,0 +1,142 @@
+"""The shared tracking NLP: cost and constraints against a NumPy reference, caching, back-ends."""
+
+import casadi as cs
+import numpy as np
+import pytest
+
+from sanav_mj.control.ocp import (
+    CACHE_ENV,
+    IpoptBackend,
+    PanocBackend,
+    SolverSettings,
+    build_tracking_ocp,
+    compile_alpaqa_problem,
+    default_cache_dir,
+    make_backend,
+)
+from sanav_mj.control.sa_mpc import SafeAreaPenalty
+from sanav_mj.control.unicycle import rollout_np
+
+
+def _random_problem(rng, n, n_extra=0):
+    x0 = np.array([0.2, -0.1, 0.4])
+    u_prev = np.array([0.3, -0.2])
+    x_ref = np.column_stack((np.linspace(0, 2, n + 1), np.zeros(n + 1), np.zeros(n + 1)))
+    u_ref = np.tile([1.0, 0.0], (n, 1))
+    w = dict(q_x=np.array([3.0, 4.0, 0.5]), q_u=np.array([1.0, 0.2]), q_a=np.array([2.0, 0.3]), q_n=np.array([9.0, 8.0, 1.0]))
+    z = rng.uniform(-1, 1, 2 * n)
+    return x0, u_prev, x_ref, u_ref, w, z
+
+
+def _numpy_cost(x0, u_prev, x_ref, u_ref, w, z, dt):
+    u = z.reshape(-1, 2)
+    xs = rollout_np(x0, u, dt)
+    n = len(u)
+    c = 0.0
+    last = u_prev
+    for k in range(n):
+        c += w["q_x"] @ (xs[k] - x_ref[k]) ** 2 + w["q_u"] @ (u[k] - u_ref[k]) ** 2 + w["q_a"] @ (u[k] - last) ** 2
+        last = u[k]
+    return c + w["q_n"] @ (xs[n] - x_ref[n]) ** 2, xs
+
+
+def test_objective_and_constraints_match_numpy_reference():
+    rng = np.random.default_rng(0)
+    n, dt = 6, 0.1
+    ocp = build_tracking_ocp(n, dt)
+    x0, u_prev, x_ref, u_ref, w, z = _random_problem(rng, n)
+    p = ocp.layout.pack(x0, u_prev, x_ref, u_ref, w["q_x"], w["q_u"], w["q_a"], w["q_n"])
+    f, g = ocp.functions()
+    want, xs = _numpy_cost(x0, u_prev, x_ref, u_ref, w, z, dt)
+    assert float(f(z, p)) == pytest.approx(want, rel=1e-12)
+    u = z.reshape(-1, 2)
+    g_want = np.concatenate((xs[1:, :2].ravel(), np.diff(u, axis=0).ravel()))
+    np.testing.assert_allclose(np.array(g(z, p)).ravel(), g_want, atol=1e-12)
+    assert ocp.n_g == 2 * n + 2 * (n - 1)
+
+
+def test_position_cost_is_added_for_stages_one_to_n():
+    rng = np.random.default_rng(1)
+    n, dt = 5, 0.1
+    pen = SafeAreaPenalty(2)
+    ocp = build_tracking_ocp(n, dt, pen, position_constraints=False)
+    x0, u_prev, x_ref, u_ref, w, z = _random_problem(rng, n, pen.n_params)
+    theta = np.array([0.0, -0.05, 0.3, 0.05, 4.0, 1.0, 0.0, 0.0, 1.0, 1.0, 1.0, 0.0])  # slot 2 inactive
+    p = ocp.layout.pack(x0, u_prev, x_ref, u_ref, w["q_x"], w["q_u"], w["q_a"], w["q_n"], theta)
+    f, g = ocp.functions()
+    base, xs = _numpy_cost(x0, u_prev, x_ref, u_ref, w, z, dt)
+    jsa = sum(SafeAreaPenalty.value_np(xs[k, :2], theta[None, :4], theta[4:5]) for k in range(1, n + 1))
+    assert jsa > 0
+    assert float(f(z, p)) == pytest.approx(base + jsa, rel=1e-12)
+    assert ocp.n_g == 2 * (n - 1)  # rates only
+
+
+def test_layout_slices_cover_the_parameter_vector():
+    ocp = build_tracking_ocp(4, 0.1, SafeAreaPenalty(3))
+    sl = ocp.layout.slices()
+    covered = np.zeros(ocp.layout.size, dtype=int)
+    for s in sl.values():
+        covered[s] += 1
+    assert np.all(covered == 1)
+    assert sl["x_ref"].stop - sl["x_ref"].start == 15 and sl["extra"].stop - sl["extra"].start == 18
+
+
+def test_builder_rejects_bad_arguments():
+    with pytest.raises(ValueError, match="horizon"):
+        build_tracking_ocp(0, 0.1)
+    with pytest.raises(ValueError, match="dt"):
+        build_tracking_ocp(3, -0.1)
+    with pytest.raises(ValueError, match="solver must be one of"):
+        make_backend("nope", build_tracking_ocp(3, 0.1), SolverSettings())
+
+
+def test_cache_dir_honours_environment(monkeypatch, tmp_path):
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path / "c"))
+    assert default_cache_dir() == tmp_path / "c"
+    monkeypatch.delenv(CACHE_ENV)
+    assert default_cache_dir().name == "sanav-mj"
+
+
+def test_compiled_problem_is_cached_on_disk(tmp_path):
+    ocp = build_tracking_ocp(2, 0.1)
+    f, g = ocp.functions()
+    path1, compiled1 = compile_alpaqa_problem(f, g, "no", tmp_path)
+    path2, compiled2 = compile_alpaqa_problem(f, g, "no", tmp_path)
+    assert compiled1 and not compiled2 and path1 == path2 and path1.is_file()
+    other = build_tracking_ocp(3, 0.1).functions()
+    path3, compiled3 = compile_alpaqa_problem(*other, "no", tmp_path)
+    assert compiled3 and path3 != path1  # a different structure never reuses the library
+
+
+def _box_problem(ocp):
+    """A small problem whose optimum has active input, rate and position bounds."""
+    n = ocp.horizon
+    x0 = np.array([0.0, 0.0, 0.0])
+    x_ref = np.column_stack((np.linspace(0, 3, n + 1), np.linspace(0, 1, n + 1), np.zeros(n + 1)))
+    u_ref = np.tile([1.5, 0.0], (n, 1))
+    p = ocp.layout.pack(x0, [0.5, 0.0], x_ref, u_ref, [10, 10, 1], [1, 0.1], [2, 0.5], [40, 40, 2])
+    z_lb = np.tile([-0.3, -4.0], n)
+    z_ub = np.tile([1.2, 4.0], n)
+    z_lb[:2] = np.maximum(z_lb[:2], [0.5 - 0.15, -0.6])
+    z_ub[:2] = np.minimum(z_ub[:2], [0.5 + 0.15, 0.6])
+    pos_lb = np.tile([-1.0, -0.5], n)
+    pos_ub = np.tile([10.0, 0.2], n)  # y <= 0.2 is active
+    rate = np.tile([0.15, 0.6], n - 1)
+    return p, z_lb, z_ub, np.concatenate((pos_lb, -rate)), np.concatenate((pos_ub, rate))
+
+
+def test_panoc_and_ipopt_agree_on_a_constrained_problem(tmp_path):
+    ocp = build_tracking_ocp(8, 0.1)
+    args = _box_problem(ocp)
+    z0 = np.zeros(ocp.n_z)
+    panoc = PanocBackend(ocp, SolverSettings(tol=1e-7, constraint_tol=1e-7), tmp_path)
+    ipopt = IpoptBackend(ocp, SolverSettings(tol=1e-9, constraint_tol=1e-9))
+    a = panoc.solve(*args, np.clip(z0, args[1], args[2]))
+    b = ipopt.solve(*args, z0)
+    assert a.converged and b.converged
+    np.testing.assert_allclose(a.z, b.z, atol=2e-4)
+    f, g = ocp.functions()
+    assert float(f(a.z, args[0])) == pytest.approx(float(f(b.z, args[0])), rel=1e-5)
+    gb = np.array(g(b.z, args[0])).ravel()
+    assert gb[1::2][: ocp.horizon].max() == pytest.approx(0.2, abs=1e-6)  # the y bound is active
+    np.testing.assert_allclose(a.y, b.y, atol=5e-2 * max(1.0, np.abs(b.y).max()))
