@@ -48,9 +48,12 @@ class PlannerConfig:
         check_spacing: [m] spacing of the dense safety check of the smoothed curve, and of
             the nodes of the speed profile.
         lambda_factor: in (0, 1): when the smoothed curve leaves the corridor, ``lam`` is
-            multiplied by this and the spline refitted ...
+            multiplied by this within ``lambda_window`` of each violation (by weighting the
+            data there) and the spline refitted ...
         max_lambda_steps: ... at most this many times, before the local fallback to the
             interpolated path over the offending stretches.
+        lambda_window: [m] half-width of the stretch around a violation where ``lam`` is
+            reduced; ``math.inf`` reduces it along the whole path.
         blend_margin: [m] half-width of the first fallback stretch around a violation.
         blend_ramp: [m] length of the smooth transition between spline and fallback.
         speed_fraction: fraction of ``RobotParams.v_max`` used as the reference top speed.
@@ -68,8 +71,9 @@ class PlannerConfig:
     goal_offset: float = 0.1
     max_projection: float = 1.0
     check_spacing: float = 0.02
-    lambda_factor: float = 0.25
-    max_lambda_steps: int = 4
+    lambda_factor: float = 0.1
+    max_lambda_steps: int = 5
+    lambda_window: float = 0.5
     blend_margin: float = 0.1
     blend_ramp: float = 0.3
     speed_fraction: float = 0.8
@@ -84,6 +88,8 @@ class PlannerConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"PlannerConfig.{name} must be a finite number > 0, got {v!r}")
+        if not (isinstance(self.lambda_window, (int, float)) and self.lambda_window > 0):
+            raise ValueError(f"PlannerConfig.lambda_window must be a number > 0 (inf allowed), got {self.lambda_window!r}")
         for name in ("portal_clearance", "goal_offset", "blend_margin", "blend_ramp"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
@@ -211,6 +217,7 @@ def plan(
         check_spacing=cfg.check_spacing,
         lambda_factor=cfg.lambda_factor,
         max_lambda_steps=cfg.max_lambda_steps,
+        lambda_window=cfg.lambda_window,
         blend_margin=cfg.blend_margin,
         blend_ramp=cfg.blend_ramp,
     )
