@@ -75,8 +75,6 @@ class MPCConfig:
             of the nominal problem, see :class:`SAMPC`).
         box_margin: [m] each stage box is shrunk by this much per side (at most a quarter of
             its width), a margin for model mismatch between samples and the real robot.
-        recovery_stages: stages over which the boxes are relaxed when the measured position
-            is outside its box (noise, slip), shrinking linearly back to zero.
         solver: ``"panoc"`` (alpaqa ALM + PANOC with L-BFGS, compiled: the paper's solver),
             ``"pantr"`` (alpaqa ALM + PANTR, Newton trust region, compiled), ``"ipopt"`` or
             ``"sqp"`` (CasADi sqpmethod + qrqp), see :mod:`sanav_mj.control.ocp`.
@@ -109,7 +107,6 @@ class MPCConfig:
     alpha_max: float | None = None
     terminal_stop: bool = True
     box_margin: float = 0.02
-    recovery_stages: int = 5
     solver: str = "panoc"
     tol: float = 1e-4
     constraint_tol: float = 1e-4
@@ -137,10 +134,6 @@ class MPCConfig:
             raise ValueError(f"MPCConfig.v_min must be a finite number <= 0 m/s, got {self.v_min!r}")
         if not (isinstance(self.box_margin, (int, float)) and 0 <= self.box_margin < 1):
             raise ValueError(f"MPCConfig.box_margin must be in [0, 1) m, got {self.box_margin!r}")
-        if not (isinstance(self.recovery_stages, int) and 1 <= self.recovery_stages <= self.horizon):
-            raise ValueError(
-                f"MPCConfig.recovery_stages must be an integer in [1, horizon], got {self.recovery_stages!r}"
-            )
         if self.solver not in BACKENDS:
             raise ValueError(f"MPCConfig.solver must be one of {sorted(BACKENDS)}, got {self.solver!r}")
         for name in ("max_iter", "max_outer_iter"):
@@ -538,12 +531,15 @@ class SAMPC:
     it lies within ``S_0 = shrink(C_{s(0)})`` the argument holds from the first sample on.
 
     **Measured position outside its box** (noise, slip, mismatch): p_0 cannot be constrained,
-    and requiring ``p_1`` inside a box the robot cannot reach in one step would make the
-    problem infeasible. Each side of the boxes of stages k = 1..K (K = ``recovery_stages``)
-    is widened by the amount p_0 lies beyond that side of ``S_0``, times ``1 - (k-1)/K``,
-    so the plan must come back within K steps; J_SA (zero inside every corridor area)
-    pulls those stages back in. If the robot cannot come back that fast the solve fails and
-    the fallback takes over.
+    and requiring ``p_1`` inside a box that a robot at rest cannot reach in one step would
+    make the problem infeasible (a unicycle needs time to move sideways). Each side of the
+    boxes of stages 1..N is widened by the amount p_0 lies beyond that side of its own box
+    ``S_0``: the plan may not go further out than the robot already is, staying put is
+    feasible for a robot at rest, and J_SA (zero inside the corridor's areas, which are
+    shrunk by the same margin) together with the tracking cost pulls the plan back in. The
+    widening is re-measured every step, so it vanishes once the robot is back inside; it
+    never exceeds the measured excursion, which lies inside the real safe area as long as
+    it is smaller than ``box_margin``.
 
     **Recursive feasibility** (nominal model, no disturbance, converged solves, the default
     ``terminal_stop``): let ``u*`` be the previous plan with positions ``p*_0..p*_N`` and
@@ -719,16 +715,14 @@ class SAMPC:
         return cand
 
     def _relaxed_boxes(self, boxes: np.ndarray, p0: np.ndarray) -> np.ndarray:
-        """Widen the boxes of stages 1..K by how far p0 lies outside the stage-0 box."""
-        out = boxes.copy()
+        """Widen each side of the boxes of stages 1..N by how far p0 lies beyond that side of the stage-0 box."""
         below = np.maximum(boxes[0, :2] - p0, 0.0)
         above = np.maximum(p0 - boxes[0, 2:], 0.0)
-        if below.any() or above.any():
-            kr = self.config.recovery_stages
-            k = np.arange(1, kr + 1)
-            f = (1.0 - (k - 1) / kr)[:, None]
-            out[1 : kr + 1, :2] -= f * below
-            out[1 : kr + 1, 2:] += f * above
+        if not (below.any() or above.any()):
+            return boxes
+        out = boxes.copy()
+        out[1:, :2] -= below
+        out[1:, 2:] += above
         return out
 
     def _sa_params(self, s: np.ndarray) -> np.ndarray:

@@ -1,0 +1,368 @@
+"""SA-MPC: corridor chain, stage assignment, constraints of the solved problem, closed loops, fallbacks."""
+
+from __future__ import annotations
+
+import casadi as cs
+import numpy as np
+import pytest
+
+from sanav_mj.control.base import Observation
+from sanav_mj.control.sa_mpc import (
+    SAMPC,
+    CorridorChain,
+    MPCConfig,
+    SafeAreaPenalty,
+    assign_stages,
+    box_intersection,
+    box_slack,
+    bridge_box,
+    stage_boxes,
+)
+from sanav_mj.control.unicycle import rollout_np, step_np
+
+from mpc_cases import L_RECTS, ROBOT, inside_union, make_areas, make_plan
+
+# ------------------------------------------------------------------ config
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        (dict(horizon=1), "horizon"),
+        (dict(dt=0.0), "dt"),
+        (dict(q_x=(1.0, 2.0)), "q_x"),
+        (dict(q_u=(1.0, -1.0)), "q_u"),
+        (dict(q_sa=()), "q_sa"),
+        (dict(v_min=0.5), "v_min"),
+        (dict(box_margin=-0.1), "box_margin"),
+        (dict(solver="cvx"), "solver"),
+        (dict(solve_budget_ms=0.0), "solve_budget_ms"),
+    ],
+)
+def test_config_rejects_bad_values_naming_the_field(kw, match):
+    with pytest.raises(ValueError, match=f"MPCConfig.{match}"):
+        MPCConfig(**kw)
+
+
+def test_config_limits_default_from_robot_and_respect_wheel_speed():
+    lim = MPCConfig().limits(ROBOT)
+    assert lim.v_max == pytest.approx(0.6 * ROBOT.v_max) and lim.w_max == pytest.approx(0.4 * ROBOT.w_max)
+    assert lim.a_max == ROBOT.a_max and lim.alpha_max == ROBOT.alpha_max and lim.v_min < 0
+    # wheel rim speed at the corners of the input box stays within the wheel's top speed
+    rim = lim.v_max + lim.w_max * ROBOT.track / 2
+    assert rim <= ROBOT.wheel_speed_max * ROBOT.wheel_radius + 1e-9
+    assert MPCConfig(v_max=0.5, a_max=0.7).limits(ROBOT).v_max == 0.5
+
+
+# ------------------------------------------------------------------ geometry
+
+
+def test_bridge_box_known_answers():
+    a = np.array([0.0, 0.0, 4.0, 1.0])
+    b = np.array([3.0, 1.0, 4.0, 4.0])  # above a, horizontal portal y = 1, x in [3, 4]
+    np.testing.assert_allclose(bridge_box(a, b), [3, 0, 4, 4])
+    c = np.array([4.0, -1.0, 6.0, 0.5])  # right of a, vertical portal x = 4, y in [0, 0.5]
+    np.testing.assert_allclose(bridge_box(a, c), [0, 0, 6, 0.5])
+    d = np.array([1.0, 0.5, 2.0, 3.0])  # overlapping: the intersection
+    np.testing.assert_allclose(bridge_box(a, d), [1, 0.5, 2, 1])
+    with pytest.raises(ValueError, match="share no boundary"):
+        bridge_box(a, np.array([5.0, 5.0, 6.0, 6.0]))
+    with pytest.raises(ValueError, match="share no boundary"):
+        bridge_box(a, np.array([4.0, 1.0, 5.0, 2.0]))  # corner contact only
+
+
+def test_chain_members_overlap_and_stay_inside_the_union(u_case):
+    areas, plan = u_case
+    chain = CorridorChain.build(areas, plan.corridor, 0.0)
+    assert len(chain) == 2 * len(plan.corridor) - 1
+    inter = box_intersection(chain.boxes[:-1], chain.boxes[1:])
+    assert np.all(inter[:, 2:] - inter[:, :2] > 0.1)  # positive-area overlaps
+    rng = np.random.default_rng(0)
+    for box in chain.boxes:
+        pts = rng.uniform(box[:2], box[2:], size=(500, 2))
+        assert inside_union(pts, areas.rects).all()
+
+
+def test_chain_rejects_a_corridor_of_non_adjacent_areas():
+    areas = make_areas(L_RECTS)
+    with pytest.raises(ValueError, match="share no boundary"):
+        CorridorChain.build(areas, np.array([1, 2]))
+    with pytest.raises(ValueError, match="corridor"):
+        CorridorChain.build(areas, np.array([0, 7]))
+
+
+def test_assignment_known_answers(l_case):
+    areas, plan = l_case
+    chain = CorridorChain.build(areas, plan.corridor, 0.0)  # R0=[0,0,4,1], B=[3,0,4,4], R1=[3,1,4,4]
+    still = np.tile([0.5, 0.5], (6, 1))
+    np.testing.assert_array_equal(assign_stages(chain, still), [0] * 6)
+    # moving up the right end of R0 into R1: advance as early as the guess allows
+    path = np.array([[3.5, 0.2], [3.5, 0.5], [3.5, 0.9], [3.5, 1.3], [3.5, 1.8], [3.5, 2.5]])
+    s = assign_stages(chain, path)
+    # (3.5, 0.2) already lies in the bridge B01 and (3.5, 1.3) in B01 ∩ R1
+    np.testing.assert_array_equal(s, [1, 1, 1, 2, 2, 2])
+    from_left = np.vstack(([[2.0, 0.5]], path))
+    np.testing.assert_array_equal(assign_stages(chain, from_left), [0, 1, 1, 1, 2, 2, 2])
+    boxes = stage_boxes(chain, s)
+    assert np.all(box_slack(path, boxes) >= 0)
+    # consecutive positions share the member s(k)
+    for k in range(len(s) - 1):
+        member = chain.boxes[s[k]][None]
+        assert box_slack(path[k : k + 2], np.repeat(member, 2, 0)).min() >= 0
+    # a guess that cannot be made feasible is assigned with the least violation
+    # (2, 2) is 1 m from R0 and sqrt(2) m from R0 ∩ B01: staying violates less than advancing
+    jump = np.array([[1.0, 0.5], [2.0, 2.0]])
+    np.testing.assert_array_equal(assign_stages(chain, jump, np.array([True, False, False])), [0, 0])
+
+
+def test_assignment_respects_first_candidates(l_case):
+    areas, plan = l_case
+    chain = CorridorChain.build(areas, plan.corridor, 0.0)
+    p = np.tile([3.5, 0.5], (3, 1))  # inside R0 and B01
+    assert assign_stages(chain, p)[0] == 1
+    assert assign_stages(chain, p, np.array([True, False, False]))[0] == 0
+
+
+def test_safe_area_penalty_matches_numpy_and_is_zero_inside():
+    pen = SafeAreaPenalty(3)
+    p = cs.SX.sym("p", 2)
+    th = cs.SX.sym("th", pen.n_params)
+    f = cs.Function("j", [p, th], [pen.expr(p, th)])
+    rects = np.array([[0.0, 0.0, 1.0, 1.0], [1.0, 0.0, 2.0, 3.0]])
+    q = np.array([2.0, 5.0])
+    theta = np.zeros((3, 6))
+    theta[:2, :4], theta[:2, 4], theta[:2, 5] = rects, q, 1.0
+    theta[2, :4] = [10, 10, 11, 11]  # inactive slot: neutral whatever its rectangle
+    rng = np.random.default_rng(0)
+    for pt in rng.uniform(-1, 4, size=(200, 2)):
+        want = SafeAreaPenalty.value_np(pt, rects, q)
+        assert float(f(pt, theta.ravel())) == pytest.approx(want, rel=1e-12, abs=1e-15)
+        assert (want == 0) == bool(inside_union(pt[None], rects)[0])
+    # the paper's formula at a known point: outside rect 0 by (0.5 in y), rect 1 by (0.5 in x, 0.5 in y)
+    pt = np.array([0.5, -0.5])
+    assert SafeAreaPenalty.value_np(pt, rects, q) == pytest.approx((2 * 0.5) ** 2 * ((5 * 0.5) ** 2 + (5 * 0.5) ** 2))
+
+
+# ------------------------------------------------------------------ one solved problem
+
+
+@pytest.fixture(scope="module")
+def l_controller(l_case):
+    areas, plan = l_case
+    return SAMPC(ROBOT, areas, plan, MPCConfig())
+
+
+def _check_prediction_constraints(ctl: SAMPC, cmd, tol=1e-3):
+    info = ctl.last
+    n = ctl.N
+    xs = cmd.predicted
+    assert xs.shape == (n + 1, 3) and np.all(np.isfinite(xs))
+    u = rollout_inputs = None  # noqa: F841
+    # inputs are recovered from the predicted states' plan stored in the controller
+    u = ctl._active.u
+    np.testing.assert_allclose(rollout_np(xs[0], u, ctl.dt), xs, atol=1e-9)
+    lim = ctl.limits
+    assert np.all(u[:, 0] >= lim.v_min - tol) and np.all(u[:, 0] <= lim.v_max + tol)
+    assert np.all(np.abs(u[:, 1]) <= lim.w_max + tol)
+    du = np.diff(np.vstack((info.u_prev, u)), axis=0)
+    assert np.all(np.abs(du) <= ctl._rate_step + tol)
+    if ctl.config.terminal_stop:
+        assert abs(u[-1, 0]) <= tol
+    assert np.all(box_slack(xs[1:, :2], info.boxes[1:]) >= -tol)
+    assert np.all(cmd.margins[1:] >= -tol)
+    # consecutive predicted positions share the convex member s(k) (chord safety)
+    s = info.assignment
+    for k in range(n):
+        member = np.repeat(ctl.chain.boxes[s[k]][None], 2, 0)
+        assert box_slack(xs[k : k + 2, :2], member).min() >= -tol
+    # every stage's reported safe area contains the predicted position
+    rects = np.asarray(ctl.areas.rects)
+    assert np.all(box_slack(xs[:, :2], rects[cmd.rect_ids]) >= -tol)
+
+
+def test_solved_prediction_respects_every_constraint(l_controller):
+    ctl = l_controller
+    x = np.array([3.3, 0.6, 0.4])
+    ctl.reset(x)
+    ctl._ref_index = 40  # mid-way: the horizon crosses the portal
+    for k in range(3):
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=np.zeros(2)))
+        assert cmd.ok and cmd.status in ("ok", "inexact")
+        _check_prediction_constraints(ctl, cmd)
+        x = step_np(x, [cmd.v, cmd.w], ctl.dt)
+    assert ctl.last.assignment[-1] > 0  # the horizon reaches past the first area
+
+
+def test_ipopt_and_panoc_agree_on_the_sa_mpc_problem(l_case):
+    areas, plan = l_case
+    cfg = MPCConfig(tol=1e-6, constraint_tol=1e-6)
+    x = np.array([0.6, 0.4, 0.3])
+    cmds = {}
+    for solver in ("panoc", "ipopt"):
+        ctl = SAMPC(ROBOT, areas, plan, cfg.replace(solver=solver))
+        ctl.reset(x)
+        pose = x.copy()
+        for k in range(15):  # same measured states: each controller sees the same sequence
+            cmd = ctl.step(Observation(t=0.1 * k, pose=pose, velocity=np.zeros(2)))
+            pose = step_np(pose, [0.5, 0.1], ctl.dt)
+        cmds[solver] = (cmd, ctl._active.u.copy())
+    (ca, ua), (cb, ub) = cmds["panoc"], cmds["ipopt"]
+    assert ca.status == "ok" and cb.status == "ok"
+    np.testing.assert_allclose(ua, ub, atol=2e-3)
+    np.testing.assert_allclose(ca.predicted, cb.predicted, atol=2e-3)
+
+
+# ------------------------------------------------------------------ closed loops
+
+
+def run_closed_loop(ctl: SAMPC, start, goal, rects, steps=400, gains=(0.95, 1.05), substeps=10, noise=0.0, seed=0):
+    """Kinematic plant with gain mismatch; returns (reached, executed positions, commands)."""
+    rng = np.random.default_rng(seed)
+    x = np.asarray(start, float).copy()
+    ctl.reset(x)
+    path = [x[:2].copy()]
+    cmds = []
+    for k in range(steps):
+        meas = x + rng.normal(0, noise, 3) * np.array([1, 1, 0.2]) if noise else x
+        cmd = ctl.step(Observation(t=k * ctl.dt, pose=meas, velocity=np.zeros(2)))
+        cmds.append(cmd)
+        assert np.isfinite(cmd.v) and np.isfinite(cmd.w)
+        u = np.array([cmd.v * gains[0], cmd.w * gains[1]])
+        for _ in range(substeps):
+            x = step_np(x, u, ctl.dt / substeps)
+            path.append(x[:2].copy())
+        if np.hypot(*(x[:2] - goal)) < 0.05 and abs(cmd.v) < 0.05:
+            return True, np.array(path), cmds
+    return False, np.array(path), cmds
+
+
+@pytest.mark.parametrize("yaw", [0.0, 2.5])
+def test_closed_loop_l_corridor_with_mismatch(l_case, yaw):
+    areas, plan = l_case
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
+    ok, path, cmds = run_closed_loop(ctl, [0.5, 0.5, yaw], plan.goal, areas.rects[plan.corridor])
+    assert ok
+    assert inside_union(path, areas.rects[plan.corridor]).all()
+    assert ctl.stats.failures == 0
+
+
+@pytest.mark.parametrize("yaw", [1.57, -2.0])
+def test_closed_loop_u_corridor_with_mismatch(u_case, yaw):
+    areas, plan = u_case
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
+    ok, path, cmds = run_closed_loop(ctl, [0.5, 0.5, yaw], plan.goal, areas.rects[plan.corridor])
+    assert ok
+    assert inside_union(path, areas.rects[plan.corridor]).all()
+    assert ctl.stats.failures == 0
+    # it went around: the path visited the top area
+    assert path[:, 1].max() > 3.0
+
+
+def test_closed_loop_with_measurement_noise_stays_inside(u_case):
+    areas, plan = u_case
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(box_margin=0.04))
+    ok, path, cmds = run_closed_loop(ctl, [0.5, 0.5, 1.57], plan.goal, areas.rects[plan.corridor], noise=0.01, seed=3)
+    assert ok
+    assert inside_union(path, areas.rects[plan.corridor]).all()
+    assert ctl.stats.failures <= 2
+
+
+def test_measured_position_outside_its_box_is_recovered(l_case):
+    areas, plan = l_case
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
+    x = np.array([1.0, -0.03, 0.0])  # at rest, 3 cm below R0 (5 cm below its shrunk box)
+    ctl.reset(x)
+    ctl._ref_index = 5
+    first = None
+    for k in range(25):
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=np.zeros(2)))
+        assert cmd.ok
+        first = cmd if first is None else first
+        x = step_np(x, [cmd.v, cmd.w], ctl.dt)
+        assert x[1] >= -0.03 - 1e-3  # never further out than it was
+    assert first.margins[0] == pytest.approx(-0.05, abs=1e-9)  # the measured position is outside ...
+    assert np.all(first.margins[1:] >= -0.05 - 1e-3)  # ... the plan may not go further out
+    assert cmd.margins[0] >= 0  # and the robot is back inside its box
+
+
+# ------------------------------------------------------------------ failures
+
+
+def test_injected_failures_shift_then_stop_then_recover(l_case):
+    areas, plan = l_case
+    fail = set(range(15, 15 + 25))  # more failures than the horizon: the plan runs out
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(), failure_injector=lambda k: k in fail)
+    x = np.array([0.5, 0.5, 0.0])
+    ctl.reset(x)
+    statuses, speeds, path = [], [], []
+    for k in range(60):
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=np.zeros(2)))
+        assert np.isfinite(cmd.v) and np.isfinite(cmd.w)
+        statuses.append(cmd.status)
+        speeds.append(cmd.v)
+        x = step_np(x, [cmd.v, cmd.w], ctl.dt)
+        path.append(x[:2].copy())
+    n = ctl.N
+    assert all(s == "ok" for s in statuses[:15])
+    assert statuses[15 : 15 + n - 1] == ["fallback_shift"] * (n - 1)  # the rest of the last plan
+    assert all(s == "fallback_stop" for s in statuses[15 + n - 1 : 40])
+    assert all(not c for c in [statuses[k] == "ok" for k in fail])
+    assert abs(speeds[39]) < 1e-9  # stopped (terminal_stop: the shifted plan ends at rest)
+    assert statuses[40] == "ok" and statuses[-1] == "ok"  # recovers
+    assert ctl.stats.failures == 25
+    assert inside_union(np.array(path), areas.rects[plan.corridor]).all()
+
+
+def test_rejected_solution_takes_the_fallback(l_case, monkeypatch):
+    areas, plan = l_case
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
+    x = np.array([0.5, 0.5, 0.0])
+    ctl.reset(x)
+    assert ctl.step(Observation(t=0.0, pose=x, velocity=np.zeros(2))).ok
+    real = ctl.backend.solve
+
+    def broken(*a, **k):
+        r = real(*a, **k)
+        r.z = r.z * np.nan
+        return r
+
+    monkeypatch.setattr(ctl.backend, "solve", broken)
+    cmd = ctl.step(Observation(t=0.1, pose=x, velocity=np.zeros(2)))
+    assert not cmd.ok and cmd.status == "fallback_shift" and np.isfinite(cmd.v)
+    assert ctl.last_failure_reason.startswith("nonfinite")
+    monkeypatch.setattr(ctl.backend, "solve", real)
+    nan_pose = np.array([np.nan, 0.5, 0.0])
+    cmd = ctl.step(Observation(t=0.2, pose=nan_pose, velocity=np.zeros(2)))
+    assert not cmd.ok and np.isfinite(cmd.v) and np.isfinite(cmd.w)
+
+
+def test_tiny_solve_budget_never_produces_nan(l_case):
+    areas, plan = l_case
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(solve_budget_ms=0.001))
+    x = np.array([0.5, 0.5, 0.0])
+    ctl.reset(x)
+    for k in range(20):
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=np.zeros(2)))
+        assert np.isfinite(cmd.v) and np.isfinite(cmd.w)
+        x = step_np(x, [cmd.v, cmd.w], ctl.dt)
+    assert inside_union(x[None, :2], areas.rects).all()
+
+
+def test_plan_without_reference_is_rejected(l_case):
+    areas, plan = l_case
+    bad = type(plan)(False, "no_path", plan.corridor, plan.goal, plan.waypoints, plan.path, plan.smoothed, None)
+    with pytest.raises(ValueError, match="plan must be successful"):
+        SAMPC(ROBOT, areas, bad)
+
+
+def test_controller_protocol_attributes(l_controller):
+    assert l_controller.name == "sa-mpc" and l_controller.dt == pytest.approx(0.1)
+    assert l_controller.needs_ranges is False
+
+
+def test_reference_yaw_is_shifted_to_the_measured_branch(l_controller):
+    ctl = l_controller
+    ctl.reset(np.array([0.5, 0.5, 0.0]))
+    xr, ur = ctl.horizon_reference(np.array([0.5, 0.5, 4 * np.pi + 0.1]))
+    assert abs(xr[0, 2] - (4 * np.pi + 0.1)) < np.pi
+    assert ur.shape == (ctl.N, 2) and xr.shape == (ctl.N + 1, 3)
