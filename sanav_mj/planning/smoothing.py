@@ -211,8 +211,8 @@ class SmoothingSpline:
         first, vals = collocation(self.length, self.n_intervals, np.asarray(u, dtype=float))
         idx = first[:, None] + _FOUR
         out = np.empty((vals.shape[0], 2))
-        out[:, 0] = (vals * self.coeffs[:, 0].take(idx)).sum(axis=1)
-        out[:, 1] = (vals * self.coeffs[:, 1].take(idx)).sum(axis=1)
+        out[:, 0] = np.einsum("ij,ij->i", vals, self.coeffs[:, 0].take(idx))
+        out[:, 1] = np.einsum("ij,ij->i", vals, self.coeffs[:, 1].take(idx))
         return out
 
     @property
