@@ -3,8 +3,10 @@
 Each episode drives the same MuJoCo differential-drive robot as the runner (through
 :class:`~sanav_mj.sim.plant.Plant`) in a *generated* cluttered map, never in one of the
 evaluation scenarios: :meth:`NavEnv.reset` draws a map seed from the training range
-``[map_seed_start, map_seed_start + n_maps)`` and a random start yaw (and, with
-probability 1/2, swaps the map's start and goal positions).
+``[map_seed_start, map_seed_start + n_maps)`` (:func:`training_scenario`: the clutter
+generator :mod:`sanav_mj.generate` with a size and density that vary with the seed) and a
+random start yaw; the start and goal are the map's own (swapped with probability 1/2) or,
+with probability ``random_endpoints``, two random free points of the map.
 
 - Observation: :func:`sanav_mj.control.dqn.build_observation` (the same function the DQN
   controller uses): range rays from MuJoCo ray casts, goal distance and bearing in the robot
@@ -26,6 +28,8 @@ probability 1/2, swaps the map's start and goal positions).
 from __future__ import annotations
 
 import math
+import os
+import tempfile
 from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -89,6 +93,11 @@ class NavEnvConfig:
         n_maps: number of training maps (seeds ``map_seed_start .. + n_maps - 1``).
         cache_maps: how many built maps (scenario + plant) are kept in memory (LRU).
         swap_start_goal: with probability 1/2 start at the map's goal and drive to its start.
+        random_endpoints: probability that an episode uses a random free start and goal in the
+            map instead of the map's own (shorter, more varied episodes).
+        endpoint_margin_m: [m] random endpoints keep the footprint this far from obstacles
+            and the workspace edge.
+        min_goal_distance_m: [m] smallest start-goal distance of random endpoints.
         obs: observation normalisation (shared with the controller).
         actions: discrete action set (shared with the controller).
         reward: reward terms.
@@ -100,9 +109,12 @@ class NavEnvConfig:
     stuck_window_s: float = 8.0
     stuck_progress_m: float = 0.05
     map_seed_start: int = 100_000
-    n_maps: int = 2000
-    cache_maps: int = 64
+    n_maps: int = 1000
+    cache_maps: int = 1000
     swap_start_goal: bool = True
+    random_endpoints: float = 0.5
+    endpoint_margin_m: float = 0.15
+    min_goal_distance_m: float = 1.0
     obs: ObservationSpec = field(default_factory=ObservationSpec)
     actions: ActionSpec = field(default_factory=ActionSpec)
     reward: RewardConfig = field(default_factory=RewardConfig)
@@ -120,12 +132,41 @@ class NavEnvConfig:
             raise ValueError(f"NavEnvConfig.map_seed_start: expected an int >= 0, got {self.map_seed_start!r}")
         if self.stuck_progress_m < 0:
             raise ValueError(f"NavEnvConfig.stuck_progress_m: expected >= 0, got {self.stuck_progress_m!r}")
+        if not (0.0 <= self.random_endpoints <= 1.0):
+            raise ValueError(f"NavEnvConfig.random_endpoints: expected a probability in [0, 1], got {self.random_endpoints!r}")
+        for name in ("endpoint_margin_m", "min_goal_distance_m"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"NavEnvConfig.{name}: expected a finite number >= 0, got {value!r}")
 
 
-def _default_map_factory(seed: int) -> Scenario:
+def training_clutter_config(seed: int):
+    """The :class:`~sanav_mj.generate.ClutterConfig` of training map ``seed``.
+
+    Map size, obstacle count and obstacle size vary with the seed (drawn from
+    ``default_rng([seed, 1])``): width 6-12 m, height 4-8 m, 0 to about one obstacle per
+    4.5 m^2, box half-extents up to 0.6-1.5 m (long walls as in the U/V scenarios).
+    """
+    from sanav_mj.generate import ClutterConfig
+
+    rng = np.random.default_rng([seed, 1])
+    width, height = float(rng.uniform(6.0, 12.0)), float(rng.uniform(4.0, 8.0))
+    n = int(rng.integers(0, int(width * height / 4.5) + 1))
+    return ClutterConfig(width_m=round(width, 2), height_m=round(height, 2), n_min=n, n_max=n,
+                         box_half_max_m=round(float(rng.uniform(0.6, 1.5)), 2))
+
+
+def training_scenario(seed: int, folder: "str | os.PathLike[str]") -> Scenario:
+    """Generated training map ``seed`` (:func:`sanav_mj.generate.generate_scenario` with
+    :func:`training_clutter_config`), written to ``folder/train_<seed>.xml`` and loaded."""
+    from pathlib import Path
+
     from sanav_mj.generate import generate_scenario
+    from sanav_mj.scene import load_scenario
 
-    return generate_scenario(seed)
+    path = Path(folder) / f"train_{seed}.xml"
+    path.write_text(generate_scenario(seed, training_clutter_config(seed)))
+    return load_scenario(path)
 
 
 class NavEnv(gym.Env):
@@ -134,7 +175,7 @@ class NavEnv(gym.Env):
     Args:
         config: environment settings.
         map_factory: ``f(seed) -> Scenario`` building a training map; default
-            :func:`sanav_mj.generate.generate_scenario`.
+            :func:`training_scenario` (generated clutter, files in a temporary folder).
     """
 
     metadata = {"render_modes": []}
@@ -142,7 +183,11 @@ class NavEnv(gym.Env):
     def __init__(self, config: NavEnvConfig = NavEnvConfig(), map_factory: MapFactory | None = None) -> None:
         super().__init__()
         self.config = config
-        self._factory = map_factory if map_factory is not None else _default_map_factory
+        if map_factory is None:
+            self._tmp = tempfile.TemporaryDirectory(prefix="sanav_nav_env_")
+            folder = self._tmp.name
+            map_factory = lambda seed: training_scenario(seed, folder)  # noqa: E731
+        self._factory = map_factory
         self._table = config.actions.table()
         self.action_space = gym.spaces.Discrete(config.actions.n)
         self.observation_space = gym.spaces.Box(-1.0, 1.0, shape=(config.obs.size,), dtype=np.float32)
@@ -195,7 +240,8 @@ class NavEnv(gym.Env):
 
         Args:
             seed: seeds the environment's generator (map choice, start yaw, start/goal swap).
-            options: optional ``{"map_seed": int, "yaw": float, "swap": bool}`` to pin them.
+            options: optional ``{"map_seed": int, "yaw": float, "swap": bool,
+                "random_endpoints": bool}`` to pin them.
 
         Returns:
             ``(observation, info)``.
@@ -214,12 +260,36 @@ class NavEnv(gym.Env):
             start_xy, goal = np.asarray(sc.goal, dtype=float), np.asarray(sc.start[:2], dtype=float)
         else:
             start_xy, goal = np.asarray(sc.start[:2], dtype=float), np.asarray(sc.goal, dtype=float)
+        use_random = bool(options.get("random_endpoints", rng.random() < cfg.random_endpoints))
+        if use_random:
+            pair = self._random_endpoints(sc)
+            if pair is not None:
+                start_xy, goal = pair
         self._goal = goal.copy()
         self._plant.reset(np.array([start_xy[0], start_xy[1], yaw]))
         self._steps = 0
         self._dist = float(np.hypot(*(start_xy - goal)))
         self._hist.clear()
         return self._observe(), {"reason": "running", "map_seed": map_seed}
+
+    def _random_endpoints(self, sc: Scenario) -> tuple[np.ndarray, np.ndarray] | None:
+        """A random free (start, goal) pair at least ``min_goal_distance_m`` apart, or None."""
+        cfg = self.config
+        keep = sc.robot.footprint_radius + cfg.endpoint_margin_m
+        lo, hi = sc.bounds[:2] + keep, sc.bounds[2:] - keep
+        if np.any(hi <= lo):
+            return None
+        pts = self.np_random.uniform(lo, hi, size=(64, 2))
+        free = np.ones(len(pts), dtype=bool)
+        for o in sc.obstacles:
+            free &= o.signed_distance(pts) > keep
+        pts = pts[free]
+        if len(pts) < 2:
+            return None
+        far = np.flatnonzero(np.hypot(*(pts[1:] - pts[0]).T) >= cfg.min_goal_distance_m)
+        if len(far) == 0:
+            return None
+        return pts[0], pts[1 + far[0]]
 
     def _out_of_bounds(self, pose: np.ndarray) -> bool:
         xmin, ymin, xmax, ymax = self.plant.scenario.bounds

@@ -59,7 +59,8 @@ def make_env(maps, **kw) -> NavEnv:
 
 
 def pinned(env: NavEnv, map_seed: int, yaw: float = 0.0):
-    return env.reset(seed=0, options={"map_seed": map_seed, "yaw": yaw, "swap": False})
+    return env.reset(seed=0, options={"map_seed": map_seed, "yaw": yaw, "swap": False,
+                                           "random_endpoints": False})
 
 
 def test_passes_gymnasium_env_checker(maps):
@@ -82,7 +83,7 @@ def test_spaces_match_the_shared_specs(maps):
 
 def test_reset_is_reproducible_and_randomises_map_yaw_and_swap(maps):
     sc = maps[0]
-    env = NavEnv(NavEnvConfig(map_seed_start=0, n_maps=10), map_factory=lambda s: sc)
+    env = NavEnv(NavEnvConfig(map_seed_start=0, n_maps=10, random_endpoints=0.0), map_factory=lambda s: sc)
     o1, i1 = env.reset(seed=123)
     pose1 = env.plant.pose()
     o2, i2 = env.reset(seed=123)
@@ -98,6 +99,38 @@ def test_reset_is_reproducible_and_randomises_map_yaw_and_swap(maps):
     assert len(seen_maps) >= 8 and seen_maps <= set(range(10))
     assert np.ptp(yaws) > 4.0  # uniform in [-pi, pi)
     assert goals == {(4.0, 0.0), (0.0, 0.0)}  # start and goal swapped about half the time
+
+
+def test_random_endpoints_are_free_and_apart(maps):
+    sc = maps[1]
+    cfg = NavEnvConfig(map_seed_start=0, n_maps=1, random_endpoints=1.0, min_goal_distance_m=2.0)
+    env = NavEnv(cfg, map_factory=lambda s: sc)
+    keep = sc.robot.footprint_radius + cfg.endpoint_margin_m
+    pairs = set()
+    for s in range(30):
+        env.reset(seed=s)
+        start, goal = env.plant.pose()[:2], env.goal
+        assert np.hypot(*(goal - start)) >= 2.0
+        for p in (start, goal):
+            assert sc.obstacles[0].signed_distance(p) > keep - 1e-6
+            assert np.all(p >= sc.bounds[:2] + keep - 1e-6) and np.all(p <= sc.bounds[2:] - keep + 1e-6)
+        assert env.plant.robot_obstacle_contacts() == 0
+        pairs.add((tuple(start.round(3)), tuple(goal.round(3))))
+    assert len(pairs) == 30
+
+
+def test_default_maps_are_generated_and_vary(tmp_path):
+    from sanav_mj.sim.nav_env import training_clutter_config, training_scenario
+
+    a, b = training_scenario(100_000, tmp_path), training_scenario(100_001, tmp_path)
+    assert training_clutter_config(100_000) == training_clutter_config(100_000)
+    assert (tuple(a.bounds), len(a.obstacles)) != (tuple(b.bounds), len(b.obstacles))
+    again = training_scenario(100_000, tmp_path / "..")
+    np.testing.assert_array_equal(again.bounds, a.bounds)
+    assert [o.name for o in again.obstacles] == [o.name for o in a.obstacles]
+    env = NavEnv(NavEnvConfig(n_maps=3))
+    _, info = env.reset(seed=0)
+    assert 100_000 <= info["map_seed"] < 100_003
 
 
 def test_observation_is_the_shared_builder_on_plant_readings(maps):
