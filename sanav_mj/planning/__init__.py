@@ -22,7 +22,7 @@ import numpy as np
 from sanav_mj.mapping.safe_areas import SafeAreas
 from sanav_mj.planning.corridor import build_graph, oriented_portals, path_length, portal_waypoints, select_corridor
 from sanav_mj.planning.reference import Plan, Reference
-from sanav_mj.planning.smoothing import corridor_assignment, safe_curve
+from sanav_mj.planning.smoothing import blend_until_inside, corridor_assignment, safe_curve
 from sanav_mj.planning.timing import time_parametrise
 from sanav_mj.scene import RobotParams
 
@@ -243,9 +243,13 @@ def plan(
         rounds += 1
         if rounds >= _MAX_SAMPLE_ROUNDS:
             curve = curve.as_polyline()
-        else:
-            curve = curve.widened(smp.u[~ok], cfg.blend_margin * 2.0**rounds)
-        nodes = curve(u_nodes)
+            nodes = curve(u_nodes)
+        else:  # fall back around the offending samples, keeping every dense node inside too
+            curve, nodes, safe = blend_until_inside(
+                curve, u_nodes, sm.hint, crect, smp.u[~ok], cfg.blend_margin * 2.0**rounds
+            )
+            if not safe:
+                return _fail("unsafe_reference", "the smoothed curve left the corridor even on the polyline", goal, start, info)
     t_time = time.perf_counter()
 
     states = np.column_stack([pos_xy, smp.yaw])

@@ -477,6 +477,7 @@ class SmoothingResult:
         path: (M, 2) [m] the interpolated path (eq. 5-6) the spline was fitted to.
         u_nodes: (N,) [m] parameters of the dense check.
         nodes: (N, 2) [m] ``curve(u_nodes)``.
+        hint: (N,) int corridor position of the polyline at each node.
         safe: True when every node lies in the corridor (always, unless even the polyline
             failed the check, which its construction excludes up to rounding).
     """
@@ -486,6 +487,7 @@ class SmoothingResult:
     path: np.ndarray
     u_nodes: np.ndarray
     nodes: np.ndarray
+    hint: np.ndarray
     safe: bool
 
 
@@ -562,14 +564,38 @@ def safe_curve(
         if weights is None:
             weights = np.ones(u_path.shape[0])
         weights[near <= lambda_window] /= lambda_factor
-    margin = blend_margin
+    safe = bool(ok.all())
+    if not safe:
+        curve, nodes, safe = blend_until_inside(
+            curve, u_chk, hint, corridor_rects, u_chk[~ok], blend_margin, max_blend_rounds
+        )
+    return SmoothingResult(curve, u_path, path, u_chk, nodes, hint, safe)
+
+
+def blend_until_inside(
+    curve: SafeCurve,
+    u_nodes: np.ndarray,
+    hint: np.ndarray,
+    corridor_rects: np.ndarray,
+    bad_u: np.ndarray,
+    margin: float,
+    max_rounds: int = 12,
+) -> tuple[SafeCurve, np.ndarray, bool]:
+    """Fall back to the polyline around ``bad_u`` [m] (half-width ``margin`` [m], doubled each
+    round) until every node ``curve(u_nodes)`` lies in the corridor; after ``max_rounds``
+    rounds the whole curve becomes the polyline.
+
+    Returns:
+        ``(curve, nodes, safe)``: the widened curve, (N, 2) [m] its nodes, and whether they
+        all lie in the corridor (see :func:`corridor_assignment`).
+    """
     rounds = 0
-    while not ok.all():
-        curve = curve.as_polyline() if rounds >= max_blend_rounds else curve.widened(u_chk[~ok], margin)
-        nodes = curve(u_chk)
+    while True:
+        curve = curve.as_polyline() if rounds >= max_rounds else curve.widened(bad_u, margin)
+        nodes = curve(u_nodes)
         _, ok = corridor_assignment(corridor_rects, nodes, hint)
+        if ok.all() or rounds >= max_rounds:
+            return curve, nodes, bool(ok.all())
+        bad_u = u_nodes[~ok]
         margin *= 2.0
         rounds += 1
-        if rounds > max_blend_rounds:
-            break
-    return SmoothingResult(curve, u_path, path, u_chk, nodes, bool(ok.all()))

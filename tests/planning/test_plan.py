@@ -178,6 +178,16 @@ def test_sharp_corner_triggers_adaptation_and_stays_inside():
     check_reference(p, areas, [0.5, 0.5], [3.5, 3.5])
 
 
+def test_sample_check_catches_what_a_coarse_node_check_misses():
+    """With nodes 0.5 m apart the node check passes a corner cut that the reference samples
+    (every <= 0.16 m) reveal; the planner falls back there instead of returning them."""
+    areas = areas_from_rects([[0, 0, 4, 1], [3, 1, 4, 4]])
+    cfg = PlannerConfig(portal_clearance=0.02, lam=0.05, check_spacing=0.5)
+    p = plan(areas, [0.5, 0.5, 0.0], [3.5, 3.5], ROBOT, cfg)
+    assert p.info["sample_rounds"] > 0 and p.info["fallback_length_m"] > 0
+    check_reference(p, areas, [0.5, 0.5], [3.5, 3.5])
+
+
 def test_plan_document_is_plain_json():
     import json
 
