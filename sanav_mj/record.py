@@ -609,7 +609,8 @@ class Recorder:
         if self._closed:
             return
         self._closed = True
-        self.rec.flush()
+        # disconnect() flushes the batcher and the file sink (blocking) before closing;
+        # an explicit flush() first only adds a second wait.
         self.rec.disconnect()
 
     def __enter__(self) -> Recorder:
