@@ -129,7 +129,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1
 
     # Held-out check on generated maps the training never saw.
-    val_env = NavEnv(replace(env_cfg, map_seed_start=VALIDATION_MAP_SEED_START, n_maps=args.val_episodes))
+    val_env = NavEnv(replace(env_cfg, map_seed_start=VALIDATION_MAP_SEED_START, n_maps=args.val_episodes,
+                             random_endpoints=0.0))
     policy_tmp = DQNPolicy(net, env_cfg.obs, env_cfg.actions, env_cfg.dt)
     validation = evaluate_greedy(val_env, policy_tmp.act, args.val_episodes, seed=args.seed + 1)
     print(f"held-out greedy: {validation}")
@@ -162,7 +163,10 @@ def main(argv: list[str] | None = None) -> int:
             "stuck_window_s": env_cfg.stuck_window_s, "stuck_progress_m": env_cfg.stuck_progress_m,
             "training_map_seeds": [env_cfg.map_seed_start, env_cfg.map_seed_start + env_cfg.n_maps - 1],
             "validation_map_seeds": [VALIDATION_MAP_SEED_START, VALIDATION_MAP_SEED_START + args.val_episodes - 1],
-            "swap_start_goal": env_cfg.swap_start_goal, "reward": asdict(env_cfg.reward),
+            "swap_start_goal": env_cfg.swap_start_goal, "random_endpoints": env_cfg.random_endpoints,
+            "endpoint_margin_m": env_cfg.endpoint_margin_m, "min_goal_distance_m": env_cfg.min_goal_distance_m,
+            "maps": "sanav_mj.sim.nav_env.training_scenario (sanav_mj.generate clutter, seed-varied size/density)",
+            "obs": asdict(env_cfg.obs), "actions": asdict(env_cfg.actions), "reward": asdict(env_cfg.reward),
         },
         "final_metrics": final,
         "versions": {

@@ -364,7 +364,7 @@ class TrainConfig:
         torch_threads: torch intra-op threads (1 keeps runs reproducible and the machine shared).
     """
 
-    total_steps: int = 300_000
+    total_steps: int = 400_000
     learning_rate: float = 5e-4
     buffer_size: int = 200_000
     learning_starts: int = 5_000
@@ -373,7 +373,7 @@ class TrainConfig:
     train_freq: int = 4
     gradient_steps: int = 1
     target_update_interval: int = 2_000
-    exploration_fraction: float = 0.3
+    exploration_fraction: float = 0.2
     exploration_initial_eps: float = 1.0
     exploration_final_eps: float = 0.05
     max_grad_norm: float = 10.0
