@@ -156,9 +156,13 @@ def plan(
 
     Returns:
         A :class:`Plan`. ``ok`` is False with ``reason == "no_path"`` when the goal cannot be
-        reached through the graph (``info["detail"]`` says why); otherwise every reference
-        sample lies in the union of the corridor's rectangles and ``Reference.area`` gives a
-        containing corridor rectangle per sample, non-decreasing along the corridor.
+        reached through the graph (``info["detail"]`` says why), or, as a guard that the
+        construction excludes, ``"unsafe_reference"`` if even the interpolated polyline
+        failed the corridor check. Otherwise every reference sample and every dense sample
+        of ``Plan.smoothed`` lies in the union of the corridor's rectangles, the reference
+        starts at the start (projected inwards when it was outside every safe area) and
+        ends at rest at ``Plan.goal``, and ``Reference.area`` gives a containing corridor
+        rectangle per sample, non-decreasing along the corridor.
 
     Raises:
         ValueError: malformed ``start`` / ``goal`` or non-positive robot limits.

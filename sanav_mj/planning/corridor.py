@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.sparse import csr_array
-from scipy.sparse.csgraph import dijkstra
+from scipy.sparse.csgraph import breadth_first_order, dijkstra
 
 from sanav_mj.mapping.safe_areas import SafeAreas, locate
 
@@ -298,8 +298,6 @@ def reachable_from(graph: AreaGraph, src: int) -> np.ndarray:
     Returns:
         (R,) bool, True for every area reachable from ``src`` (including ``src``).
     """
-    from scipy.sparse.csgraph import breadth_first_order
-
     order = breadth_first_order(_csgraph(graph), src, directed=True, return_predecessors=False)
     mask = np.zeros(graph.n, dtype=bool)
     mask[order] = True
