@@ -125,18 +125,22 @@ def obstacle_polygons(
     yaw = np.zeros(k)
     rho = np.full(k, float(inflation))
     for n, ob in enumerate(obstacles):
-        centre[n] = ob.center
+        c = np.asarray(ob.center, dtype=float)
+        hs = np.asarray(ob.half_size, dtype=float)
+        if c.shape != (2,) or hs.shape != (2,) or not (np.all(np.isfinite(c)) and np.all(np.isfinite(hs))
+                                                       and np.isfinite(ob.yaw)):
+            raise ValueError(f"obstacle {ob.name!r}: center, half_size must be 2 finite numbers and yaw finite, "
+                             f"got center={ob.center!r}, half_size={ob.half_size!r}, yaw={ob.yaw!r}")
+        if np.any(hs < 0):
+            raise ValueError(f"obstacle {ob.name!r}: half_size must be >= 0 [m], got {hs.tolist()}")
+        centre[n] = c
         if ob.kind == "box":
-            half[n] = ob.half_size
+            half[n] = hs
             yaw[n] = ob.yaw
         elif ob.kind in ("cylinder", "capsule"):
-            rho[n] += float(ob.half_size[0])
+            rho[n] += hs[0]
         else:
             raise ValueError(f"obstacle {ob.name!r}: kind must be box, cylinder or capsule, got {ob.kind!r}")
-    if not (np.all(np.isfinite(centre)) and np.all(np.isfinite(half)) and np.all(np.isfinite(yaw))):
-        raise ValueError("obstacles must have finite center, half_size and yaw")
-    if np.any(half < 0) or np.any(rho < 0):
-        raise ValueError("obstacles must have half_size >= 0")
     # A rectangle at yaw t equals the one at t mod pi/2 with the half sizes swapped after an
     # odd number of quarter turns; with t in [0, pi/2) the octagon's edge order is fixed:
     # square 0, box t, square pi/2, box t + pi/2, ... (edge directions increase CCW).

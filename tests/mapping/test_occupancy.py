@@ -188,7 +188,34 @@ def test_rasterise_rejects_bad_input(kwargs, message):
         rasterise([], **kwargs)
 
 
-def test_rasterise_rejects_unknown_kind():
-    bad = Obstacle("s", "sphere", np.zeros(2), 0.0, np.array([0.1, 0.1]), 1.0, -1)  # type: ignore[arg-type]
-    with pytest.raises(ValueError, match="sphere"):
-        rasterise([bad], [0, 0, 1, 1], 0.1, inflation=0.0)
+@pytest.mark.parametrize(
+    "obstacle, message",
+    [
+        (Obstacle("s", "sphere", np.zeros(2), 0.0, np.array([0.1, 0.1]), 1.0, -1), "'s'.*sphere"),  # type: ignore[arg-type]
+        (box(0.5, float("nan"), 0.1, 0.1), "'b'.*finite"),
+        (box(0.5, 0.5, 0.1, 0.1, float("inf")), "'b'.*finite"),
+        (box(0.5, 0.5, -0.1, 0.1), "'b'.*half_size must be >= 0"),
+        (disc(0.5, 0.5, -0.1), "'c'.*half_size must be >= 0"),
+    ],
+)
+def test_rasterise_rejects_bad_obstacles(obstacle, message):
+    with pytest.raises(ValueError, match=message):
+        rasterise([obstacle], [0, 0, 1, 1], 0.1, inflation=0.0)
+
+
+@pytest.mark.parametrize("name", ["single_rect", "double_rect", "u_shape", "v_shape", "complex"])
+def test_builtin_scenarios_free_cells_are_clear(name):
+    """On the built-in scenarios, every point of a free cell (corners, edge midpoints, centre)
+    is farther than the inflation from every obstacle (Obstacle.signed_distance)."""
+    from sanav_mj.scene import load_scenario
+
+    scenario = load_scenario(name)
+    inflation = scenario.robot.footprint_radius + 0.05
+    grid = rasterise(scenario.obstacles, scenario.bounds, 0.05, inflation=inflation)
+    ii, jj = np.nonzero(~grid.occupied)
+    assert ii.size > 0.3 * grid.occupied.size
+    for u in (0.0, 0.5, 1.0):
+        for v in (0.0, 0.5, 1.0):
+            pts = np.stack([grid.origin[0] + (jj + u) * 0.05, grid.origin[1] + (ii + v) * 0.05], axis=1)
+            for ob in scenario.obstacles:
+                assert ob.signed_distance(pts).min() > inflation - 1e-9
