@@ -87,7 +87,6 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--json", type=Path, help="write the areas JSON here")
     a.add_argument("--plot", type=Path, help="write a PNG of the map here")
     a.add_argument("--resolution", type=_resolution, default=0.05, help="grid cell size [m] (default 0.05)")
-    a.add_argument("--merge", choices=("paper", "maximal"), default="paper", help="merge rule (default paper)")
 
     r = sub.add_parser("run", help="one closed-loop run")
     r.add_argument("scenario", help="MJCF file or built-in scenario name")
@@ -151,7 +150,7 @@ def _cmd_areas(args) -> int:
     from sanav_mj.eval.episode import areas_document, prepare
 
     _check_outputs(args.json, args.plot)
-    prep = prepare(args.scenario, resolution=args.resolution, merge=args.merge)
+    prep = prepare(args.scenario, resolution=args.resolution)
     doc = areas_document(prep)
     if args.json:
         _write_json(args.json, doc)

@@ -71,7 +71,7 @@ def prepare(
     Args:
         spec: scenario path, built-in name, or an already loaded :class:`Scenario`.
         resolution: [m] grid cell size.
-        merge: merge rule of the safe areas (``"paper"`` or ``"maximal"``).
+        merge: merge rule of the safe areas (see ``sanav_mj.mapping.safe_areas.MERGE_METHODS``).
         start: (3,) [m, m, rad] start pose to plan from (default: the scenario's).
     """
     from sanav_mj.mapping import MapConfig, build_map
