@@ -390,9 +390,9 @@ class Recorder:
                     static=True)
         if plan.reference is not None and len(plan.reference):
             ref = np.asarray(plan.reference.states, dtype=float)[:, :2]
-            rec.log("world/plan/reference", rr.LineStrips2D([ref], colors=_C_REFERENCE, radii=0.02,
+            rec.log("world/plan/reference", rr.LineStrips2D([ref], colors=_C_REFERENCE, radii=0.012,
                                                             draw_order=_Z_PLAN + 0.5), static=True)
-            rec.log("world/plan/reference/samples", rr.Points2D(ref, colors=_C_REFERENCE, radii=0.025,
+            rec.log("world/plan/reference/samples", rr.Points2D(ref, colors=_C_REFERENCE, radii=0.02,
                                                                 draw_order=_Z_PLAN + 0.5), static=True)
 
         start = np.asarray(sc.start, dtype=float)
@@ -414,6 +414,19 @@ class Recorder:
                                                    radii=0.015, draw_order=_Z_ROBOT), static=True)
         for entity, (name, color) in _SERIES.items():
             rec.log(entity, rr.SeriesLines(names=name, colors=color), static=True)
+        # Style of the per-step entities, once (only components that are not logged per step:
+        # a static component would shadow the per-step values of the same component).
+        rec.log("world/trail", rr.LineStrips2D.from_fields(colors=_C_TRAIL, radii=0.035, draw_order=_Z_TRAIL),
+                static=True)
+        rec.log("world/measured", rr.Points2D.from_fields(colors=_C_MEASURED, radii=0.025, draw_order=_Z_ROBOT),
+                static=True)
+        rec.log("world/collisions", rr.Points2D.from_fields(colors=_C_COLLISION, radii=0.09, draw_order=_Z_MARK),
+                static=True)
+        rec.log("world/horizon/predicted", rr.LineStrips2D.from_fields(colors=_C_HORIZON, radii=0.012,
+                                                                       draw_order=_Z_HORIZON), static=True)
+        rec.log("world/horizon/points", rr.Points2D.from_fields(radii=0.03, draw_order=_Z_HORIZON), static=True)
+        rec.log("world/horizon/rects", rr.Boxes2D.from_fields(colors=_C_HORIZON, radii=0.02, draw_order=_Z_HORIZON),
+                static=True)
 
     # ------------------------------------------------------------------ per step
     def log_step(self, step: int, trace: Any) -> None:
@@ -526,9 +539,10 @@ class Recorder:
                     mrows.append(i - a)
             if pred is None:
                 continue
-            p = np.asarray(pred, dtype=float).reshape(-1, 3)[:, :2]
-            if not len(p):
-                continue
+            p = np.asarray(pred, dtype=float)
+            if p.ndim != 2 or p.shape[1] < 2 or not len(p):
+                continue  # (K, 3) states expected; (K, 2) positions also accepted
+            p = p[:, :2]
             rows.append(i - a)
             strips.append(p)
             col = np.tile(np.array(_C_HORIZON, dtype=np.uint8), (len(p), 1))
