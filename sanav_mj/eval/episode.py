@@ -160,9 +160,6 @@ def run_scenario(
     prep = prepare(scenario, resolution=prep0.grid.resolution if prep0 else resolution, start=start) \
         if prep0 is None else _replan(prep0, start)
     setup_ms = (time.perf_counter() - t0) * 1e3 if prep0 is None else prep.timing_ms.get("plan", 0.0)
-    ctrl = controller_obj if controller_obj is not None else make_controller(
-        controller, prep.scenario, prep.grid, prep.areas, prep.plan, solve_budget_ms=mismatch.solve_budget_ms
-    )
     model = mismatched_model(scenario, mismatch) if mismatch.physical else None
     plant = Plant(scenario, model=model)
     cfg = replace(run_config or RunConfig(), time_limit_s=time_limit_s)
@@ -172,9 +169,13 @@ def run_scenario(
         from sanav_mj.record import Recorder
 
         recorder = Recorder(rrd, prep, controller)
-    if not prep.plan.ok and controller == "sa-mpc":
+    if not prep.plan.ok and controller == "sa-mpc" and controller_obj is None:
+        # SA-MPC needs a corridor; the baselines drive without one and may still try.
         episode = _no_path_episode(plant, start)
     else:
+        ctrl = controller_obj if controller_obj is not None else make_controller(
+            controller, prep.scenario, prep.grid, prep.areas, prep.plan, solve_budget_ms=mismatch.solve_budget_ms
+        )
         episode = run_episode(plant, ctrl, start, scenario.goal, cfg, mismatch, rng,
                               on_step=recorder.log_step if recorder else None)
     doc = episode_json(
