@@ -83,7 +83,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Self
 
 import mujoco
 import numpy as np
@@ -627,7 +627,7 @@ class Recorder:
         # an explicit flush() first only adds a second wait.
         self.rec.disconnect()
 
-    def __enter__(self) -> Recorder:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -221,3 +221,14 @@ def test_plot_heatmap_rejects_mismatched_shapes(vals, y_key, y_values, match, tm
 def test_plot_heatmap_rejects_empty_x(tmp_path):
     with pytest.raises(ValueError, match="x_values"):
         plot_heatmap(np.zeros((1, 0)), "k", [], "j", ["a"], "t", tmp_path / "bad.png")
+
+
+# ---------------------------------------------------------------------------- end to end
+def test_plots_of_a_real_run(tmp_path):
+    """Through the whole pipeline: a short u_shape run and its map."""
+    from sanav_mj.eval.episode import run_scenario
+
+    out = run_scenario("u_shape", seed=2, time_limit_s=2.0)
+    assert len(out.episode.trace) > 5
+    assert_png(plot_run(out, tmp_path / "run.png"), (1500, 750))
+    assert_png(plot_areas(out.prepared, tmp_path / "areas.png"), (1500, 900))
