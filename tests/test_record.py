@@ -168,6 +168,8 @@ def test_static_entities_logged_once(recorded):
     assert len(ents["/world/quadtree/occupied"]["data"]["Boxes2D:centers"][0]) == 2
     assert len(ents["/world/plan/corridor"]["data"]["Boxes2D:centers"][0]) == 3
     assert len(ents["/world/plan/reference/samples"]["data"]["Points2D:positions"][0]) == 21
+    # Display-only y flip at the root of the 2D scene.
+    assert ents["/world"]["data"]["Transform3D:scale"][0][0] == [1.0, -1.0, 1.0]
     # Grid placed at the world origin with the cell size as scale.
     tf = ents["/world/grid"]["data"]
     assert tf["Transform3D:translation"][0][0] == pytest.approx([-1.0, -2.0, 0.0])
