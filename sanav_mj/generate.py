@@ -84,7 +84,7 @@ class ClutterConfig:
     goal_x_m: float = 1.0
     endpoint_y_fraction: float = 0.5
     endpoint_clearance_m: float = 0.3
-    margin_m: float = 0.1
+    margin_m: float = 0.15
     check_resolution_m: float = 0.1
     max_attempts: int = 2000
 
