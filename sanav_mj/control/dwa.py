@@ -43,8 +43,11 @@ box grown by ``delta``. The spacing is chosen per arc so that this box is narrow
 cell (``s (1 + s |kappa| / 4) <= check_step_cells`` cells), hence it meets at most 2 x 2 cells
 and :meth:`DWA.path_clearance` checks them all. The check is therefore conservative for the
 continuous arc, not only at the samples: no corner of an occupied cell can be cut.
-If the robot already stands in an occupied cell (noise, slip), an arc is admissible when it
-never goes deeper (its clearance never drops below the current one), so DWA can back out.
+Admissible arcs also keep ``safety_margin_m + speed_margin_s * |v|`` of distance-field
+clearance beyond the collision threshold (the plant lags and slips, more so at speed; slow
+arcs may still use the narrowest passages). If the robot already stands inside that zone or
+in an occupied cell (noise, slip), an arc is admissible when it never goes deeper (its
+clearance never drops below the current one), so DWA can back out.
 
 Admissibility (Fox et al.: the robot must be able to stop before it hits anything). A sample
 is admissible when its arc is free over the path length the robot covers if it holds (v, w)
@@ -122,6 +125,12 @@ class DWAConfig:
         clearance_mode: ``"arc"`` (Fox et al.'s dist: path length along the arc to its
             first collision) or ``"min"`` (smallest distance-field clearance within the
             horizon); both capped at ``clearance_cap_m``.
+        safety_margin_m: [m] extra distance from the occupied cells that admissible arcs
+            keep, on top of the grid's inflation (>= 0).
+        speed_margin_s: [s] admissible arcs also keep ``speed_margin_s * |v|`` from the
+            occupied cells (>= 0): it absorbs the plant's deviation from the exact unicycle
+            arcs (actuator lag, slip), which grows with speed, while slow arcs may still use
+            the narrowest passages.
     """
 
     dt: float = 0.1
@@ -139,11 +148,14 @@ class DWAConfig:
     wheel_limits: bool = True
     check_step_cells: float = 0.9
     clearance_mode: str = "arc"
+    safety_margin_m: float = 0.0
+    speed_margin_s: float = 0.05
 
     def __post_init__(self) -> None:
         for name in ("dt", "horizon_s", "clearance_cap_m"):
             _require(name, getattr(self, name), "finite and > 0", lambda x: math.isfinite(x) and x > 0)
-        for name in ("heading_weight", "clearance_weight", "velocity_weight", "goal_radius_m"):
+        for name in ("heading_weight", "clearance_weight", "velocity_weight", "goal_radius_m", "safety_margin_m",
+                     "speed_margin_s"):
             _require(name, getattr(self, name), "finite and >= 0", lambda x: math.isfinite(x) and x >= 0)
         _require("v_min", self.v_min, "finite and <= 0 [m/s]", lambda x: math.isfinite(x) and x <= 0)
         _require("check_step_cells", self.check_step_cells, "in (0, 1) [cells]", lambda x: 0 < x < 1)
@@ -427,8 +439,9 @@ class DWA:
         pts[:, 1:, 1] = pose[1] + chord * np.sin(mid)
         clear = self.path_clearance(pts, sagitta)  # (S, n): piece k covers path (k-1, k] * step
         start_clear = float(self.clearance(pose[:2]))
-        limit = min(self._threshold, start_clear)  # inside an obstacle: never go deeper
-        bad = clear < limit
+        # keep the safety margin from occupied cells; inside that zone: never go deeper
+        limit = np.minimum(self._threshold + c.safety_margin_m + c.speed_margin_s * np.abs(v), start_clear)
+        bad = clear < limit[:, None]
         hit = np.where(bad.any(axis=1), step * (np.argmax(bad, axis=1) + 1), np.inf)
         # a collision in piece k leaves the arc free up to (k - 1) * step
         admissible = hit - step >= stop

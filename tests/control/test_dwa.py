@@ -161,7 +161,7 @@ def test_admissible_samples_are_free_over_their_stopping_distance():
     dwa = DWA(ROBOT, grid, GOAL)
     rng = np.random.default_rng(11)
     free = np.argwhere(~grid.occupied)
-    checked = 0
+    checked = with_margin = 0
     for _ in range(25):
         i, j = free[rng.integers(len(free))]
         pose = np.array([grid.origin[0] + (j + rng.uniform()) * grid.resolution,
@@ -177,8 +177,13 @@ def test_admissible_samples_are_free_over_their_stopping_distance():
             s = np.linspace(0.0, stop, max(2, int(stop / 0.002) + 2))
             arc = unicycle_arcs(pose, [vi], [wi], s / abs(vi))[0]
             assert not dwa.collides(arc[:, :2]).any(), (pose, vi, wi, stop)
+            # ... and keeps the speed-dependent margin (unless it starts inside it)
+            keep = 0.5 * grid.resolution + dwa.config.speed_margin_s * abs(vi)
+            if dwa.clearance(pose[:2]) >= keep:
+                assert dwa.clearance(arc[:, :2]).min() >= keep
+                with_margin += 1
             checked += 1
-    assert checked > 1000
+    assert checked > 1000 and with_margin > 500
 
 
 # ----------------------------------------------------------------------------- closed loop
