@@ -404,9 +404,10 @@ class DWA:
             w: (S,) [rad/s] yaw rates.
 
         Returns:
-            Dict of (S,) arrays: ``admissible`` (bool: the arc is free over ``stop_m``),
-            ``stop_m`` [m] the stopping distance, ``hit_m`` [m] path length to the piece of
-            arc holding the first collision (``inf`` if none within the traced length),
+            Dict of (S,) arrays: ``admissible`` (bool: the arc keeps its safety margin over
+            ``stop_m``), ``stop_m`` [m] the stopping distance, ``hit_m`` [m] path length to
+            the piece of arc that first enters the margin zone (``inf`` if none within the
+            traced length),
             ``clearance_m`` [m] the clearance term before normalisation, ``heading`` [rad]
             ``pi - |bearing error|`` at the end of the horizon (``pi`` when the rollout,
             sampled at half the control period, passes within ``goal_radius_m`` of the
