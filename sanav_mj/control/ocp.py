@@ -28,12 +28,12 @@ k = 0 the position is the measured one, a constant.
 
 Back-ends (same NLP, same parameters, same warm start):
 
-- :class:`PanocBackend`: alpaqa's augmented Lagrangian method with PANOC inner solver (the
-  paper's solver). The CasADi functions and their gradients are generated as C, compiled
+- :class:`PanocBackend`: alpaqa's augmented Lagrangian method with PANOC inner solver and
+  L-BFGS directions (the paper's solver); :class:`PantrBackend`: the same with PANTR
+  (Newton trust-region directions from Hessian-vector products). The CasADi functions and their gradients are generated as C, compiled
   with the system C compiler and cached on disk under a hash of the problem, so a second
   process only loads the shared library.
 - :class:`IpoptBackend`: CasADi's IPOPT interface (exact Hessian, MUMPS), the reference.
-- :class:`SqpBackend`: CasADi ``sqpmethod`` with the ``qrqp`` active-set QP solver.
 """
 
 from __future__ import annotations
@@ -248,6 +248,49 @@ def build_tracking_ocp(
     return TrackingOCP(n, float(dt), z, p, cost, g, layout, position_constraints, key)
 
 
+def shift_inputs(u: np.ndarray, start: int, horizon: int, rate_step: np.ndarray, u_last: np.ndarray) -> np.ndarray:
+    """Warm start from a plan: ``u[start:]`` then braking towards (0, 0) at the rate limits.
+
+    Args:
+        u: (M, 2) [m/s, rad/s] plan.
+        start: first input of ``u`` still to apply.
+        horizon: N, rows of the result.
+        rate_step: (2,) [m/s, rad/s] largest change of each input per step.
+        u_last: (2,) input to brake from when nothing of ``u`` is left.
+
+    Returns:
+        (N, 2) inputs; every increment respects ``rate_step`` if ``u`` does.
+    """
+    rest = u[start:]
+    out = np.empty((horizon, 2))
+    m = min(len(rest), horizon)
+    out[:m] = rest[:m]
+    last = rest[m - 1] if m else np.asarray(u_last, dtype=float)
+    for k in range(m, horizon):
+        last = np.sign(last) * np.maximum(np.abs(last) - rate_step, 0.0)
+        out[k] = last
+    return out
+
+
+def shift_multipliers(ocp: TrackingOCP, y: np.ndarray) -> np.ndarray:
+    """Multipliers of ``g`` (m,) shifted by one stage: positions repeat the last, rates end with 0."""
+    n = ocp.horizon
+    parts = []
+    if ocp.position_constraints:
+        pos = y[: 2 * n].reshape(n, 2)
+        parts.append(np.concatenate((pos[1:], pos[-1:])).ravel())
+    rate = y[ocp.n_pos :].reshape(n - 1, 2)
+    parts.append(np.concatenate((rate[1:], np.zeros((1, 2)))).ravel())
+    return np.concatenate(parts)
+
+
+def shift_bound_multipliers(y_z: np.ndarray | None) -> np.ndarray | None:
+    """Multipliers of the variable bounds (2N,) shifted by one stage (last stage 0), or None."""
+    if y_z is None:
+        return None
+    return np.concatenate((y_z[2:], np.zeros(2)))
+
+
 @dataclass
 class SolveResult:
     """Outcome of one solve.
@@ -295,12 +338,11 @@ class SolverSettings:
     """Back-end independent solver settings.
 
     Attributes:
-        tol: optimality tolerance (PANOC/PANTR: ALM inner stationarity epsilon; IPOPT: ``tol``;
-            SQP: ``tol_du``).
+        tol: optimality tolerance (PANOC/PANTR: ALM inner stationarity epsilon; IPOPT: ``tol``).
         constraint_tol: allowed constraint violation [m for positions, m/s and rad/s for
-            increments] (ALM delta; IPOPT ``constr_viol_tol``; SQP ``tol_pr``).
-        max_iter: iteration limit (PANOC/PANTR: inner iterations per ALM pass; IPOPT/SQP:
-            NLP iterations).
+            increments] (ALM delta; IPOPT ``constr_viol_tol``).
+        max_iter: iteration limit (PANOC/PANTR: inner iterations per ALM pass; IPOPT: NLP
+            iterations).
         max_outer_iter: ALM outer iterations (PANOC/PANTR only).
         budget_ms: [ms] optional wall-clock limit per solve, or None.
         lbfgs_memory: L-BFGS memory of PANOC.
@@ -315,7 +357,7 @@ class SolverSettings:
     max_iter: int = 300
     max_outer_iter: int = 20
     budget_ms: float | None = None
-    lbfgs_memory: int = 20
+    lbfgs_memory: int = 40
     initial_penalty: float = 10.0
     input_scale: tuple[float, float] = (1.0, 3.0)
 
@@ -529,34 +571,10 @@ class IpoptBackend(_CasadiNlpBackend):
         return {"ipopt": ipopt, "print_time": False}
 
 
-class SqpBackend(_CasadiNlpBackend):
-    """CasADi ``sqpmethod`` (exact Hessian) with the ``qrqp`` active-set QP solver."""
-
-    name = "sqp"
-    plugin = "sqpmethod"
-
-    def _options(self, settings: SolverSettings) -> dict:
-        return {
-            "qpsol": "qrqp",
-            "qpsol_options": {"print_iter": False, "print_header": False, "error_on_fail": False},
-            "print_header": False,
-            "print_iteration": False,
-            "print_status": False,
-            "print_time": False,
-            "max_iter": settings.max_iter,
-            "tol_pr": settings.constraint_tol,
-            "tol_du": settings.tol,
-            "error_on_fail": False,
-            "hessian_approximation": "exact",
-            "convexify_strategy": "regularize",
-        }
-
-
 BACKENDS: dict[str, type] = {
     "panoc": PanocBackend,
     "pantr": PantrBackend,
     "ipopt": IpoptBackend,
-    "sqp": SqpBackend,
 }
 
 

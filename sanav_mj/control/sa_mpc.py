@@ -29,6 +29,9 @@ from sanav_mj.control.ocp import (
     TrackingOCP,
     build_tracking_ocp,
     make_backend,
+    shift_bound_multipliers,
+    shift_inputs,
+    shift_multipliers,
 )
 from sanav_mj.control.unicycle import SINC_HALF_ANGLE_MAX, rollout_np
 from sanav_mj.mapping.safe_areas import SafeAreas
@@ -63,8 +66,10 @@ class MPCConfig:
         q_a: diagonal of Qa, weights of the input increment ``u_k - u_{k-1}`` (same units).
         q_n: diagonal of QN, terminal state error weights (as q_x).
         q_sa: J_SA priority q_SA(n) [1/m] of each safe-area slot; its length is the number of
-            slots (the safe areas nearest along the corridor that the horizon visits; unused
-            slots are neutral).
+            slots: the first safe areas along the corridor that the horizon visits (unused
+            slots are neutral). Two by default, the robot's area and the next: J_SA can only
+            be non-zero where the hard boxes are relaxed, which is near the robot, and each
+            slot costs about 20 % of the objective's evaluation time.
         v_min: [m/s] lowest forward speed (negative: reversing allowed); None -> -0.25 * v_max.
         v_max: [m/s] top forward speed; None -> 0.6 * robot.v_max.
         w_max: [rad/s] top yaw rate magnitude; None -> 0.4 * robot.w_max. With the two
@@ -76,8 +81,8 @@ class MPCConfig:
         box_margin: [m] each stage box is shrunk by this much per side (at most a quarter of
             its width), a margin for model mismatch between samples and the real robot.
         solver: ``"panoc"`` (alpaqa ALM + PANOC with L-BFGS, compiled: the paper's solver),
-            ``"pantr"`` (alpaqa ALM + PANTR, Newton trust region, compiled), ``"ipopt"`` or
-            ``"sqp"`` (CasADi sqpmethod + qrqp), see :mod:`sanav_mj.control.ocp`.
+            ``"pantr"`` (alpaqa ALM + PANTR, Newton trust region, compiled) or ``"ipopt"``
+            (through CasADi, the reference), see :mod:`sanav_mj.control.ocp`.
         tol: optimality tolerance of the solver.
         constraint_tol: [m] allowed constraint violation reported by the solver; a solution
             violating a constraint by more than 10x this is rejected.
@@ -99,7 +104,7 @@ class MPCConfig:
     q_u: tuple[float, float] = (1.0, 0.1)
     q_a: tuple[float, float] = (2.0, 0.5)
     q_n: tuple[float, float, float] = (40.0, 40.0, 2.0)
-    q_sa: tuple[float, ...] = (5.0, 5.0, 5.0)
+    q_sa: tuple[float, ...] = (5.0, 5.0)
     v_min: float | None = None
     v_max: float | None = None
     w_max: float | None = None
@@ -691,18 +696,9 @@ class SAMPC:
 
     def _guess_inputs(self) -> np.ndarray:
         """(N, 2) warm start: the rest of the active plan, then braking towards (0, 0)."""
-        n = self.N
         if self._active is None:
-            return np.zeros((n, 2))
-        rest = self._active.u[self._active.next :]
-        out = np.empty((n, 2))
-        m = min(len(rest), n)
-        out[:m] = rest[:m]
-        last = rest[-1] if len(rest) else self._u_prev
-        for k in range(m, n):
-            last = np.sign(last) * np.maximum(np.abs(last) - self._rate_step, 0.0)
-            out[k] = last
-        return out
+            return np.zeros((self.N, 2))
+        return shift_inputs(self._active.u, self._active.next, self.N, self._rate_step, self._u_prev)
 
     def _first_candidates(self) -> np.ndarray | None:
         """Members allowed for stage 0: within two of the previous anchor (None at a cold start)."""
@@ -801,10 +797,10 @@ class SAMPC:
         self.last = StepInfo(
             s, boxes_c, u_guess, guess, xr, ur, self._u_prev.copy(), z_lb.reshape(n, 2), z_ub.reshape(n, 2), self._rate_step
         )
-        y0 = self._shifted_multipliers()
-        y_z0 = None
-        if self._active is not None and self._active.y_z is not None:
-            y_z0 = np.concatenate((self._active.y_z[2:], np.zeros(2)))
+        y0 = y_z0 = None
+        if self._active is not None and self._active.next == 1 and self._active.y is not None:
+            y0 = shift_multipliers(self.ocp, self._active.y)
+            y_z0 = shift_bound_multipliers(self._active.y_z)
 
         if self.failure_injector is not None and self.failure_injector(k_step):
             return self._fallback(x0, t0, s, boxes_c, "injected")
@@ -837,19 +833,6 @@ class SAMPC:
             rect_ids=self._rect_ids(s, xs[:, :2]),
             margins=margins,
         )
-
-    def _shifted_multipliers(self) -> np.ndarray | None:
-        """Multipliers of the active plan shifted by one stage (positions and rates)."""
-        a = self._active
-        if a is None or a.y is None or a.next != 1:
-            return None
-        n = self.N
-        y = a.y
-        pos = y[: 2 * n].reshape(n, 2)
-        rate = y[2 * n :].reshape(n - 1, 2)
-        pos = np.concatenate((pos[1:], pos[-1:]))
-        rate = np.concatenate((rate[1:], np.zeros((1, 2))))
-        return np.concatenate((pos.ravel(), rate.ravel()))
 
     def _count(self, status: str) -> None:
         self.stats.counts[status] = self.stats.counts.get(status, 0) + 1

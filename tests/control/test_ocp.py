@@ -13,6 +13,9 @@ from sanav_mj.control.ocp import (
     compile_alpaqa_problem,
     default_cache_dir,
     make_backend,
+    shift_bound_multipliers,
+    shift_inputs,
+    shift_multipliers,
 )
 from sanav_mj.control.sa_mpc import SafeAreaPenalty
 from sanav_mj.control.unicycle import rollout_np
@@ -140,3 +143,19 @@ def test_panoc_and_ipopt_agree_on_a_constrained_problem(tmp_path):
     gb = np.array(g(b.z, args[0])).ravel()
     assert gb[1::2][: ocp.horizon].max() == pytest.approx(0.2, abs=1e-6)  # the y bound is active
     np.testing.assert_allclose(a.y, b.y, atol=5e-2 * max(1.0, np.abs(b.y).max()))
+
+
+def test_shift_inputs_brakes_within_the_rate_limits():
+    u = np.array([[1.0, 0.5], [1.1, 0.4], [1.2, -0.3]])
+    rate = np.array([0.5, 0.2])
+    out = shift_inputs(u, 1, 5, rate, u[0])
+    np.testing.assert_allclose(out, [[1.1, 0.4], [1.2, -0.3], [0.7, -0.1], [0.2, 0.0], [0.0, 0.0]])
+    np.testing.assert_allclose(shift_inputs(u, 3, 2, rate, np.array([0.3, -0.5])), [[0.0, -0.3], [0.0, -0.1]])
+
+
+def test_shift_multipliers_moves_one_stage():
+    ocp = build_tracking_ocp(3, 0.1)
+    y = np.arange(ocp.n_g, dtype=float)  # positions 0..5, rates 6..9
+    np.testing.assert_allclose(shift_multipliers(ocp, y), [2, 3, 4, 5, 4, 5, 8, 9, 0, 0])
+    assert shift_bound_multipliers(None) is None
+    np.testing.assert_allclose(shift_bound_multipliers(np.arange(6.0)), [2, 3, 4, 5, 0, 0])

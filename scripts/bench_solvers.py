@@ -1,0 +1,285 @@
+"""Benchmark the SA-MPC solver back-ends on one recorded sequence of optimal-control problems.
+
+1. Record: a kinematic closed loop (exact unicycle plant with 5 % speed / yaw-rate gain
+   mismatch) drives SA-MPC, solved tightly by IPOPT, through a synthetic L-shaped corridor
+   of three safe areas and a U-shaped one. Every problem the controller poses (measured
+   state, previous input, reference, stage boxes, J_SA areas, bounds) is recorded with its
+   tight optimum.
+2. Replay: each back-end solves the same sequence in order, warm-started from its own
+   shifted previous solution (primal and multipliers) exactly as the controller does. Wall
+   and CPU time of each ``backend.solve`` call (the Python call included) are measured, and
+   the quality of each answer against the tight optimum: cost excess, constraint violation,
+   first-input difference.
+3. Closed loop: each back-end also drives its own closed loop on the same corridors; the
+   controller's whole step (``Command.solve_ms``) and the tracking error are reported.
+4. Construction: a fresh process builds the controller with an empty cache (code
+   generation + compilation) and a second process with the filled cache.
+
+Usage: ``python scripts/bench_solvers.py [--solvers panoc pantr ipopt] [--horizon 20]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sanav_mj.control.base import Observation
+from sanav_mj.control.ocp import (
+    SolverSettings,
+    make_backend,
+    shift_bound_multipliers,
+    shift_inputs,
+    shift_multipliers,
+)
+from sanav_mj.control.sa_mpc import SAMPC, MPCConfig
+from sanav_mj.control.unicycle import step_np
+from sanav_mj.mapping.safe_areas import SafeAreas
+from sanav_mj.planning.reference import Plan, Reference
+from sanav_mj.scene import RobotParams
+
+# A Jackal-sized robot (the values the MuJoCo model gives, rounded).
+ROBOT = RobotParams(
+    wheel_radius=0.1, track=0.38, footprint_radius=0.3, wheel_speed_max=20.0,
+    v_max=2.0, w_max=10.5, a_max=1.5, alpha_max=6.0,
+)  # fmt: skip
+
+CORRIDORS = {
+    # name: (rects, corridor, waypoints, start yaw)
+    "L": (
+        [[0.0, 0.0, 5.0, 1.2], [3.8, 1.2, 5.0, 4.0], [3.8, 4.0, 8.0, 5.0]],
+        [0, 1, 2],
+        [[0.5, 0.6], [4.4, 0.6], [4.4, 4.5], [7.5, 4.5]],
+        1.0,
+    ),
+    "U": (
+        [[0.0, 0.0, 1.0, 3.0], [0.0, 3.0, 4.0, 4.0], [3.0, 0.0, 4.0, 3.0]],
+        [0, 1, 2],
+        [[0.5, 0.5], [0.5, 3.5], [3.5, 3.5], [3.5, 0.5]],
+        -2.0,
+    ),
+}
+
+
+def make_case(name: str, speed: float = 0.8, dt: float = 0.1) -> tuple[SafeAreas, Plan]:
+    """Safe areas and a plan whose reference runs along the waypoints at ``speed`` [m/s]."""
+    rects, corridor, waypoints, _ = CORRIDORS[name]
+    rects = np.asarray(rects, float)
+    edges, portals = [], []
+    for i, j in zip(corridor[:-1], corridor[1:]):
+        lo = np.maximum(rects[i, :2], rects[j, :2])
+        hi = np.minimum(rects[i, 2:], rects[j, 2:])
+        edges.append((min(i, j), max(i, j)))
+        portals.append([lo, hi])
+    centres = (rects[:, :2] + rects[:, 2:]) / 2
+    areas = SafeAreas(
+        rects=rects,
+        edges=np.array(edges),
+        weights=np.array([np.hypot(*(centres[i] - centres[j])) for i, j in edges]),
+        portals=np.array(portals),
+    )
+    wp = np.asarray(waypoints, float)
+    cum = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(wp, axis=0).T))))
+    s, v, acc, out = 0.0, 0.0, 0.8, [0.0]
+    while s < cum[-1] - 1e-9:
+        v = max(0.02, min(speed, v + acc * dt, np.sqrt(2 * acc * (cum[-1] - s))))
+        s = min(cum[-1], s + v * dt)
+        out.append(s)
+    s_arr = np.array(out)
+    xy = np.column_stack([np.interp(s_arr, cum, wp[:, i]) for i in range(2)])
+    d = np.diff(xy, axis=0)
+    yaw = np.unwrap(np.concatenate((np.arctan2(d[:, 1], d[:, 0]), [np.arctan2(d[-1, 1], d[-1, 0])])))
+    inputs = np.column_stack((np.append(np.hypot(*d.T) / dt, 0.0), np.append(np.diff(yaw) / dt, 0.0)))
+    area = np.array(
+        [next(r for r in corridor if np.all(p >= rects[r, :2] - 1e-9) and np.all(p <= rects[r, 2:] + 1e-9)) for p in xy]
+    )
+    ref = Reference(dt=dt, states=np.column_stack((xy, yaw)), inputs=inputs, area=area)
+    plan = Plan(True, "ok", np.array(corridor), wp[-1], wp, wp, xy, ref)
+    return areas, plan
+
+
+def closed_loop(ctl: SAMPC, plan: Plan, yaw: float, steps: int = 400, record: list | None = None) -> dict:
+    """Drive the controller with the mismatched kinematic plant; optionally record each OCP."""
+    be = ctl.backend
+    real = be.solve
+    if record is not None:
+
+        def recording(*args):
+            res = real(*args)
+            record.append((args[:5], res.z.copy()))
+            return res
+
+        be.solve = recording
+    try:
+        x = np.array([*plan.reference.states[0, :2], yaw])
+        ctl.reset(x)
+        ms, err, reached = [], [], False
+        ref_xy = plan.smoothed
+        for k in range(steps):
+            cmd = ctl.step(Observation(t=k * ctl.dt, pose=x.copy(), velocity=np.zeros(2)))
+            ms.append(cmd.solve_ms)
+            x = step_np(x, [0.95 * cmd.v, 1.05 * cmd.w], ctl.dt)
+            err.append(np.min(np.hypot(*(ref_xy - x[:2]).T)))
+            if np.hypot(*(x[:2] - plan.goal)) < 0.05 and abs(cmd.v) < 0.05:
+                reached = True
+                break
+    finally:
+        be.solve = real
+    ms = np.array(ms)
+    return {
+        "reached": reached,
+        "steps": k + 1,
+        "step_ms_mean": float(ms.mean()),
+        "step_ms_p99": float(np.percentile(ms, 99)),
+        "step_ms_max": float(ms.max()),
+        "track_err_mean_m": float(np.mean(err)),
+        "track_err_max_m": float(np.max(err)),
+        "failures": ctl.stats.failures,
+        "counts": dict(ctl.stats.counts),
+    }
+
+
+def replay(backend, ocp, problems, rate_step) -> dict:
+    """Solve the recorded problems in order, warm-starting from the own shifted solution."""
+    import casadi as cs
+
+    fcost = cs.Function("f", [ocp.z, ocp.p], [ocp.f])
+    gfun = cs.Function("g", [ocp.z, ocp.p], [ocp.g])
+    n = ocp.horizon
+    wall, cpu, excess, viol, du0, iters, conv = [], [], [], [], [], [], 0
+    prev = None
+    for (p, z_lb, z_ub, g_lb, g_ub), z_star in problems:
+        if prev is None:
+            z0, y0, yz0 = np.zeros(2 * n), None, None
+        else:
+            z0 = shift_inputs(prev.z.reshape(n, 2), 1, n, rate_step, prev.z[:2]).ravel()
+            y0 = shift_multipliers(ocp, prev.y)
+            yz0 = shift_bound_multipliers(prev.y_z)
+        z0 = np.clip(z0, z_lb, z_ub)
+        t0, c0 = time.perf_counter(), time.process_time()
+        res = backend.solve(p, z_lb, z_ub, g_lb, g_ub, z0, y0, yz0)
+        wall.append((time.perf_counter() - t0) * 1e3)
+        cpu.append((time.process_time() - c0) * 1e3)
+        prev = res
+        conv += res.converged
+        iters.append(res.iterations)
+        f_star = float(fcost(z_star, p))
+        excess.append(float(fcost(res.z, p)) - f_star)
+        g = np.array(gfun(res.z, p)).ravel()
+        viol.append(max(np.max(g_lb - g, initial=0), np.max(g - g_ub, initial=0), np.max(z_lb - res.z, initial=0), np.max(res.z - z_ub, initial=0)))
+        du0.append(float(np.max(np.abs(res.z[:2] - z_star[:2]))))
+    wall, cpu = np.array(wall), np.array(cpu)
+    return {
+        "solves": len(wall),
+        "converged": int(conv),
+        "wall_ms_mean": float(wall.mean()),
+        "wall_ms_p50": float(np.median(wall)),
+        "wall_ms_p99": float(np.percentile(wall, 99)),
+        "wall_ms_max": float(wall.max()),
+        "cpu_ms_mean": float(cpu.mean()),
+        "cpu_ms_p99": float(np.percentile(cpu, 99)),
+        "iterations_mean": float(np.mean(iters)),
+        "cost_excess_mean": float(np.mean(excess)),
+        "cost_excess_max": float(np.max(excess)),
+        "violation_max": float(np.max(viol)),
+        "du0_max": float(np.max(du0)),
+    }
+
+
+_BUILD_SNIPPET = """
+import json, sys, time
+t0 = time.perf_counter()
+sys.path.insert(0, {scripts!r})
+from bench_solvers import make_case, ROBOT
+from sanav_mj.control.sa_mpc import SAMPC, MPCConfig
+areas, plan = make_case("L")
+t1 = time.perf_counter()
+ctl = SAMPC(ROBOT, areas, plan, MPCConfig(solver={solver!r}, horizon={horizon}))
+t2 = time.perf_counter()
+print(json.dumps({{"imports_s": t1 - t0, "build_s": t2 - t1, "compiled": bool(getattr(ctl.backend, "compiled", False))}}))
+"""
+
+
+def build_times(solver: str, horizon: int) -> dict:
+    """Controller construction time in a fresh process with an empty, then a filled, cache."""
+    out = {}
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, SANAV_MJ_CACHE=cache)
+        code = _BUILD_SNIPPET.format(scripts=str(Path(__file__).resolve().parent), solver=solver, horizon=horizon)
+        for label in ("first_process", "second_process"):
+            proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+            out[label] = json.loads(proc.stdout.strip().splitlines()[-1])
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--solvers", nargs="+", default=["panoc", "pantr", "ipopt"])
+    ap.add_argument("--horizon", type=int, default=20)
+    ap.add_argument("--no-build", action="store_true", help="skip the construction-time measurement")
+    ap.add_argument("--json", type=Path, help="write all results to this file")
+    args = ap.parse_args(argv)
+
+    base = MPCConfig(horizon=args.horizon)
+    # 1. record the sequence with a tight IPOPT
+    problems = []
+    cases = {name: make_case(name) for name in CORRIDORS}
+    for name, (areas, plan) in cases.items():
+        ctl = SAMPC(ROBOT, areas, plan, base.replace(solver="ipopt", tol=1e-9, constraint_tol=1e-9))
+        closed_loop(ctl, plan, CORRIDORS[name][3], record=problems)
+    ocp = ctl.ocp
+    rate_step = ctl.limits.rate() * ctl.dt
+    print(f"recorded {len(problems)} problems (N = {args.horizon}) from closed loops on the L and U corridors")
+
+    results: dict = {"horizon": args.horizon, "problems": len(problems), "replay": {}, "closed_loop": {}, "build": {}}
+    for solver in args.solvers:
+        backend = make_backend(solver, ocp, base.replace(solver=solver).solver_settings())
+        replay(backend, ocp, problems[:20], rate_step)  # warm-up (page-in, first calls)
+        results["replay"][solver] = replay(backend, ocp, problems, rate_step)
+        loops = {}
+        for name, (areas, plan) in cases.items():
+            ctl = SAMPC(ROBOT, areas, plan, base.replace(solver=solver))
+            loops[name] = closed_loop(ctl, plan, CORRIDORS[name][3])
+        results["closed_loop"][solver] = loops
+        if not args.no_build and solver in ("panoc", "pantr", "ipopt"):
+            results["build"][solver] = build_times(solver, args.horizon)
+
+    ref = results["replay"].get("ipopt")
+    print("\nReplay of the recorded sequence (per solve, Python call included)")
+    print(f"{'solver':8s} {'wall mean':>9s} {'p50':>6s} {'p99':>6s} {'max':>6s} {'cpu mean':>8s} {'x IPOPT':>7s} "
+          f"{'iters':>6s} {'conv':>5s} {'cost excess mean/max':>22s} {'viol max':>9s} {'|du0| max':>9s}")  # fmt: skip
+    for solver, r in results["replay"].items():
+        ratio = ref["wall_ms_mean"] / r["wall_ms_mean"] if ref else float("nan")
+        print(
+            f"{solver:8s} {r['wall_ms_mean']:9.3f} {r['wall_ms_p50']:6.3f} {r['wall_ms_p99']:6.2f} {r['wall_ms_max']:6.2f} "
+            f"{r['cpu_ms_mean']:8.3f} {ratio:7.1f} {r['iterations_mean']:6.1f} {r['converged']:5d} "
+            f"{r['cost_excess_mean']:10.2e}/{r['cost_excess_max']:9.2e} {r['violation_max']:9.1e} {r['du0_max']:9.1e}"
+        )
+    print("\nClosed loops (controller step incl. Python, tracking error to the reference path)")
+    for solver, loops in results["closed_loop"].items():
+        for name, r in loops.items():
+            print(
+                f"{solver:8s} {name}: reached={r['reached']} steps={r['steps']} step ms mean {r['step_ms_mean']:.3f} "
+                f"p99 {r['step_ms_p99']:.2f} max {r['step_ms_max']:.2f}; track err mean {r['track_err_mean_m'] * 100:.2f} cm "
+                f"max {r['track_err_max_m'] * 100:.2f} cm; failures {r['failures']}"
+            )
+    if results["build"]:
+        print("\nController construction (fresh process; empty cache, then filled cache)")
+        for solver, b in results["build"].items():
+            f, s = b["first_process"], b["second_process"]
+            print(f"{solver:8s} first {f['build_s']:.2f} s (compiled={f['compiled']}), second {s['build_s']:.3f} s "
+                  f"(compiled={s['compiled']}); imports {s['imports_s']:.2f} s")  # fmt: skip
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
