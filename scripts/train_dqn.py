@@ -10,7 +10,11 @@ Needs the ``rl`` extra (``pip install torch==2.13.0`` first on CPU-only machines
     training.png     training curve: episode return, success rate, TD loss
     episodes.csv     one row per training episode
 
-Example (the shipped policy):  python scripts/train_dqn.py --steps 300000 --seed 0
+Example (the shipped policy):  python scripts/train_dqn.py --steps 400000 --seed 0
+
+``--evaluate N`` trains nothing: it runs the policy in ``--out`` on the built-in (evaluation)
+scenarios, N seeds each (random initial yaw), through the same harness as ``sanav-mj run``
+(:func:`sanav_mj.eval.episode.run_scenario`) and writes ``evaluation.json`` beside it.
 """
 
 from __future__ import annotations
@@ -29,7 +33,9 @@ import numpy as np
 from sanav_mj.control.dqn import DEFAULT_POLICY_FILE, DQNPolicy, qnetwork_from_sb3
 from sanav_mj.sim.nav_env import NavEnv, NavEnvConfig, TrainConfig, evaluate_greedy, train_dqn
 
-#: Held-out map seeds for the post-training check (disjoint from the training range).
+#: Map seeds for checkpoint selection during training (disjoint from training and test maps).
+SELECTION_MAP_SEED_START = 800_000
+#: Held-out map seeds for the post-training check (disjoint from training and selection maps).
 VALIDATION_MAP_SEED_START = 900_000
 SB3_ZIP_LIMIT_BYTES = 2 * 1024 * 1024
 
@@ -44,7 +50,7 @@ def _rolling(x: np.ndarray, n: int) -> np.ndarray:
     return (c[idx] - c[lo]) / (idx - lo)
 
 
-def _plot(log, total_steps: int, path: Path, title: str) -> None:
+def _plot(log, total_steps: int, path: Path, title: str, shipped_step: int) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -56,10 +62,17 @@ def _plot(log, total_steps: int, path: Path, title: str) -> None:
     if len(ep):
         axes[0].plot(ep[:, 0], ep[:, 1], ".", ms=1.5, alpha=0.3, color="tab:blue")
         axes[0].plot(ep[:, 0], _rolling(ep[:, 1], 100), color="tab:blue", label="mean of last 100 episodes")
-        axes[1].plot(ep[:, 0], 100 * _rolling(ep[:, 3], 100), color="tab:green")
+        axes[1].plot(ep[:, 0], 100 * _rolling(ep[:, 3], 100), color="tab:green",
+                     label="training episodes (epsilon-greedy, last 100)")
+    if log.evaluations:
+        ev = np.asarray(log.evaluations, dtype=float)
+        axes[1].plot(ev[:, 0], 100 * ev[:, 1], "o-", color="black", ms=4, label="greedy, selection maps")
+        axes[1].legend(loc="lower right", fontsize=8)
+    for ax in axes:
+        ax.axvline(shipped_step, color="gray", ls="--", lw=1)
     axes[0].set_ylabel("episode return")
     axes[0].legend(loc="lower right")
-    axes[1].set_ylabel("success % (last 100)")
+    axes[1].set_ylabel("success %")
     axes[1].set_ylim(0, 100)
     if len(loss):
         axes[2].plot(loss[:, 0], _rolling(loss[:, 1], 500), color="tab:red")
@@ -75,6 +88,35 @@ def _plot(log, total_steps: int, path: Path, title: str) -> None:
     plt.close(fig)
 
 
+def evaluate_builtin(out: Path, runs: int) -> dict:
+    """Run the policy ``out/policy.npz`` on every built-in scenario for seeds 0..runs-1."""
+    from sanav_mj.control.dqn import DQNController
+    from sanav_mj.eval.episode import prepare, run_scenario
+    from sanav_mj.resources import builtin_scenarios
+
+    result: dict = {"policy": str(out / DEFAULT_POLICY_FILE), "runs_per_scenario": runs, "scenarios": {}}
+    for name in builtin_scenarios():
+        prep = prepare(name)
+        rows = []
+        for seed in range(runs):
+            ctrl = DQNController.load(out / DEFAULT_POLICY_FILE, prep.scenario.robot, prep.scenario.goal)
+            doc = run_scenario(prep, controller="dqn", seed=seed, controller_obj=ctrl).document
+            rows.append({k: doc[k] for k in ("seed", "success", "reason", "steps", "sim_time_s", "path_length_m",
+                                             "min_clearance_m")} | {"yaw": doc["start"][2],
+                                                                     "solve_ms_mean": doc["solve_ms"]["mean"],
+                                                                     "solve_ms_max": doc["solve_ms"]["max"]})
+        reasons: dict[str, int] = {}
+        for r in rows:
+            reasons[r["reason"]] = reasons.get(r["reason"], 0) + 1
+        result["scenarios"][name] = {
+            "success_rate": sum(r["success"] for r in rows) / runs,
+            "reasons": dict(sorted(reasons.items())),
+            "runs": rows,
+        }
+        print(f"{name:12s} success {100 * result['scenarios'][name]['success_rate']:5.1f} %  {reasons}", flush=True)
+    return result
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
     ap.add_argument("--steps", type=int, default=TrainConfig.total_steps, help="environment steps")
@@ -83,9 +125,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n-maps", type=int, default=NavEnvConfig.n_maps, help="number of training maps")
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
     ap.add_argument("--val-episodes", type=int, default=200, help="held-out greedy episodes after training")
+    ap.add_argument("--select-episodes", type=int, default=60,
+                    help="greedy episodes per checkpoint evaluation (0: ship the final network)")
+    ap.add_argument("--select-every", type=int, default=25_000, help="steps between checkpoint evaluations")
+    ap.add_argument("--select-start", type=int, default=100_000, help="first checkpoint evaluation")
     ap.add_argument("--measure", type=int, default=0,
                     help="only measure training steps/s over this many steps, write nothing")
+    ap.add_argument("--evaluate", type=int, default=0, metavar="N",
+                    help="do not train: run the policy in --out on the built-in scenarios, N seeds each")
     args = ap.parse_args(argv)
+    if args.evaluate:
+        result = evaluate_builtin(args.out, args.evaluate)
+        (args.out / "evaluation.json").write_text(json.dumps(result, indent=2) + "\n")
+        print(f"wrote {args.out / 'evaluation.json'}")
+        return 0
 
     import gymnasium
     import mujoco
@@ -109,8 +162,20 @@ def main(argv: list[str] | None = None) -> int:
                             succ=f"{np.mean([e[3] for e in recent]):.2f}")
         bar.refresh()
 
-    model, log = train_dqn(env, train_cfg, seed=args.seed, progress=progress)
+    select_env = None
+    if args.select_episodes and not args.measure:
+        select_env = NavEnv(replace(env_cfg, map_seed_start=SELECTION_MAP_SEED_START, n_maps=args.select_episodes,
+                                    random_endpoints=0.0))
+    model, log = train_dqn(env, train_cfg, seed=args.seed, progress=progress, eval_env=select_env,
+                           eval_every=args.select_every, eval_start=args.select_start,
+                           eval_episodes=args.select_episodes)
     bar.close()
+    shipped_step = train_cfg.total_steps
+    if log.best_state is not None:
+        model.q_net.load_state_dict(log.best_state)
+        model.q_net_target.load_state_dict(log.best_state)
+        shipped_step = log.best_step
+        print(f"checkpoint selection: {log.evaluations}; shipping step {shipped_step}")
     steps_per_s = train_cfg.total_steps / log.wall_time_s
     print(f"trained {train_cfg.total_steps} steps in {log.wall_time_s:.0f} s ({steps_per_s:.0f} steps/s), "
           f"{len(log.episodes)} episodes")
@@ -148,6 +213,7 @@ def main(argv: list[str] | None = None) -> int:
         },
         "td_loss_first_1000_updates": float(loss[:1000, 1].mean()),
         "td_loss_last_1000_updates": float(loss[-1000:, 1].mean()),
+        "shipped_checkpoint_step": shipped_step,
         "held_out_greedy": validation,
         "numpy_vs_torch_max_abs_q_diff": max_diff,
     }
@@ -167,6 +233,14 @@ def main(argv: list[str] | None = None) -> int:
             "endpoint_margin_m": env_cfg.endpoint_margin_m, "min_goal_distance_m": env_cfg.min_goal_distance_m,
             "maps": "sanav_mj.sim.nav_env.training_scenario (sanav_mj.generate clutter, seed-varied size/density)",
             "obs": asdict(env_cfg.obs), "actions": asdict(env_cfg.actions), "reward": asdict(env_cfg.reward),
+        },
+        "checkpoint_selection": {
+            "rule": "highest greedy success rate on the selection maps (latest on a tie)",
+            "selection_map_seeds": [SELECTION_MAP_SEED_START, SELECTION_MAP_SEED_START + args.select_episodes - 1]
+            if select_env is not None else None,
+            "episodes": args.select_episodes, "every_steps": args.select_every, "start_step": args.select_start,
+            "evaluations": [[int(a), float(b)] for a, b in log.evaluations],
+            "best_step": shipped_step, "eval_wall_time_s": round(log.eval_wall_time_s, 1),
         },
         "final_metrics": final,
         "versions": {
@@ -193,7 +267,8 @@ def main(argv: list[str] | None = None) -> int:
         for e in log.episodes:
             wr.writerow([e[0], f"{e[1]:.4f}", e[2], int(e[3]), e[4], e[5]])
     _plot(log, train_cfg.total_steps, out / "training.png",
-          f"DQN training (seed {args.seed}, {train_cfg.total_steps} steps, {log.wall_time_s / 60:.0f} min)")
+          f"DQN training (seed {args.seed}, {train_cfg.total_steps} steps, {log.wall_time_s / 60:.0f} min; "
+          f"dashed: shipped checkpoint)", shipped_step)
     print(f"wrote {out}")
     return 0
 

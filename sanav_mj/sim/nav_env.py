@@ -409,12 +409,21 @@ class TrainingLog:
     Attributes:
         episodes: per finished episode ``(end_step, return, length, success, reason, map_seed)``.
         losses: per gradient update ``(step, mean TD (Huber) loss of that update)``.
-        wall_time_s: [s] wall time of ``learn``.
+        wall_time_s: [s] wall time of ``learn`` (including the checkpoint evaluations).
+        evaluations: per checkpoint evaluation ``(step, greedy success rate)``.
+        best_step: step of the checkpoint with the highest greedy success rate (latest on a
+            tie), or -1 without evaluations.
+        best_state: that checkpoint's Q-network ``state_dict`` (torch tensors), or None.
+        eval_wall_time_s: [s] part of ``wall_time_s`` spent in checkpoint evaluations.
     """
 
     episodes: list[tuple[int, float, int, bool, str, int]] = field(default_factory=list)
     losses: list[tuple[int, float]] = field(default_factory=list)
     wall_time_s: float = 0.0
+    evaluations: list[tuple[int, float]] = field(default_factory=list)
+    best_step: int = -1
+    best_state: Any = field(default=None, repr=False)
+    eval_wall_time_s: float = 0.0
 
     def loss_array(self) -> np.ndarray:
         """(U, 2) [step, loss] of every gradient update."""
@@ -430,6 +439,10 @@ def train_dqn(
     config: TrainConfig,
     seed: int,
     progress: Callable[[int, TrainingLog], None] | None = None,
+    eval_env: NavEnv | None = None,
+    eval_every: int = 25_000,
+    eval_start: int = 100_000,
+    eval_episodes: int = 60,
 ):
     """Train a stable-baselines3 DQN (MLP) on ``env``; needs the ``rl`` extra (torch, SB3).
 
@@ -442,6 +455,12 @@ def train_dqn(
         seed: seeds SB3 (network init, exploration, replay sampling) and the environment.
         progress: optional ``f(step, log)`` called every 1000 environment steps (the edge
             hook for a progress bar; this function itself never prints).
+        eval_env: optional validation environment (held-out generated maps). From step
+            ``eval_start`` on, every ``eval_every`` steps and at the end, the greedy policy
+            runs ``eval_episodes`` episodes there (the same episodes each time: the reset is
+            seeded with 0) and the best checkpoint is kept in the log (DQN's greedy policy
+            is not monotone in training time). The evaluations use their own environment
+            and random generator, so they do not change the training trajectory.
 
     Returns:
         ``(model, log)``: the trained SB3 ``DQN`` model and the :class:`TrainingLog`.
@@ -477,7 +496,25 @@ def train_dqn(
                 self._ret, self._len = 0.0, 0
             if progress is not None and self.num_timesteps % 1000 == 0:
                 progress(int(self.num_timesteps), log)
+            n = self.num_timesteps
+            if eval_env is not None and n >= eval_start and ((n - eval_start) % eval_every == 0
+                                                             or n == config.total_steps):
+                _checkpoint(self.model, n)
             return True
+
+    def _checkpoint(model, step: int) -> None:
+        import copy
+
+        from sanav_mj.control.dqn import qnetwork_from_sb3
+
+        t = time.perf_counter()
+        net = qnetwork_from_sb3(model)
+        res = evaluate_greedy(eval_env, lambda o: int(np.argmax(net.q_values(o))), eval_episodes, seed=0)
+        log.evaluations.append((step, res["success_rate"]))
+        if log.best_step < 0 or res["success_rate"] >= max(r for _, r in log.evaluations[:-1] or [(0, -1.0)]):
+            log.best_step = step
+            log.best_state = copy.deepcopy(model.q_net.state_dict())
+        log.eval_wall_time_s += time.perf_counter() - t
 
     model = _LoggedDQN(
         "MlpPolicy",
