@@ -445,16 +445,21 @@ def get_backend(ocp: TrackingOCP, solver: str, settings: SolverSettings, cache_d
     return be
 
 
-def _resample(ref: Reference, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Reference states (K', 3) and inputs (K', 2) resampled to period ``dt`` [s] (linear)."""
+def _resample(ref: Reference, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Reference states (K', 3), inputs (K', 2) and areas (K',) resampled to period ``dt`` [s].
+
+    States and inputs are interpolated linearly in time; each new sample takes the area of
+    the nearest original sample.
+    """
     k = len(ref)
     if abs(ref.dt - dt) <= 1e-9 * dt:
-        return np.asarray(ref.states, float), np.asarray(ref.inputs, float)
+        return np.asarray(ref.states, float), np.asarray(ref.inputs, float), np.asarray(ref.area, int)
     t = np.arange(k) * ref.dt
     tn = np.arange(0.0, t[-1] + 1e-9, dt)
     states = np.stack([np.interp(tn, t, ref.states[:, i]) for i in range(3)], axis=1)
     inputs = np.stack([np.interp(tn, t, ref.inputs[:, i]) for i in range(2)], axis=1)
-    return states, inputs
+    area = np.asarray(ref.area, int)[np.minimum(np.rint(tn / ref.dt).astype(int), k - 1)]
+    return states, inputs, area
 
 
 @dataclass
@@ -526,6 +531,16 @@ class SAMPC:
     :func:`assign_stages` for the guessed trajectory (the shifted previous plan rolled out
     from the measured state): the assignment under which the guess violates the boxes
     least, advancing as early as it allows.
+
+    **Targets beyond the assigned area.** A stage whose reference sample lies in a corridor
+    area *ahead* of the stage's chain member cannot reach it; its position target is the
+    reference sample projected onto the central half of the exit region of the member,
+    ``shrink(C_{s(k)} ∩ C_{s(k)+1})``, and its yaw target the bearing from the robot to that point (when it is
+    more than 2 cm away). Without this the far reference pulls the plan against the nearest wall
+    of the current area, which in a narrow passage need not touch the portal to the next
+    one: the plan stops at the wall, the assignment never advances and the robot stalls
+    (seen on ``v_shape``). With it the plan heads for the portal, the guess enters the
+    intersection and the assignment advances next step.
 
     **Safety between samples.** ``p_k in S_k ⊂ C_{s(k)}`` and ``p_{k+1} in S_{k+1} ⊂ C_{s(k)}``,
     so the chord ``[p_k, p_{k+1}]`` lies in the convex member ``C_{s(k)}``, which lies in the
@@ -619,7 +634,10 @@ class SAMPC:
         self._rects = np.asarray(areas.rects, dtype=float)
         self.plan = plan
         self.chain = CorridorChain.build(areas, plan.corridor, config.box_margin)
-        self.ref_states, self.ref_inputs = _resample(plan.reference, self.dt)
+        self.ref_states, self.ref_inputs, ref_area = _resample(plan.reference, self.dt)
+        # chain index (2 x corridor position) of each reference sample's area, -1 if off the corridor
+        pos = {int(a): 2 * i for i, a in enumerate(np.asarray(plan.corridor, int))}
+        self._ref_chain = np.array([pos.get(int(a), -1) for a in ref_area], dtype=int)
         self.failure_injector = failure_injector
         n = config.horizon
         self.N = n
@@ -692,7 +710,27 @@ class SAMPC:
         ur = self.ref_inputs[idx[:-1]].copy()
         ur[idx[:-1] >= k - 1] = 0.0
         xr[:, 2] += 2 * np.pi * np.round((pose[2] - xr[0, 2]) / (2 * np.pi))
+        self._horizon_idx = idx
         return xr, ur
+
+    def _exit_targets(self, xr: np.ndarray, s: np.ndarray, p0: np.ndarray, yaw0: float) -> np.ndarray:
+        """Reference states pulled into reach: see "Targets beyond the assigned area" in the class doc."""
+        ahead = self._ref_chain[self._horizon_idx] > s
+        ahead &= s + 1 < len(self.chain)
+        if not ahead.any():
+            return xr
+        out = xr.copy()
+        k = np.flatnonzero(ahead)
+        box = self.chain.advance[s[k] + 1]
+        inner = 0.25 * (box[:, 2:] - box[:, :2])  # aim at the central half, not the edge
+        tgt = np.clip(out[k, :2], box[:, :2] + inner, box[:, 2:] - inner)
+        out[k, :2] = tgt
+        d = tgt - p0
+        far = np.hypot(d[:, 0], d[:, 1]) > 0.02
+        if far.any():
+            bearing = np.arctan2(d[far, 1], d[far, 0])
+            out[k[far], 2] = yaw0 + (bearing - yaw0 + np.pi) % (2 * np.pi) - np.pi
+        return out
 
     def _guess_inputs(self) -> np.ndarray:
         """(N, 2) warm start: the rest of the active plan, then braking towards (0, 0)."""
@@ -779,6 +817,7 @@ class SAMPC:
         s = assign_stages(self.chain, guess[:, :2], self._first_candidates(), tol=self._check_tol)
         boxes = stage_boxes(self.chain, s)
         boxes_c = self._relaxed_boxes(boxes, x0[:2])
+        xr = self._exit_targets(xr, s, x0[:2], float(x0[2]))
 
         z_lb = self._z_lb.copy()
         z_ub = self._z_ub.copy()
