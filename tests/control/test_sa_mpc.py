@@ -258,6 +258,23 @@ def test_closed_loop_u_corridor_with_mismatch(u_case, yaw):
     assert path[:, 1].max() > 3.0
 
 
+def test_narrow_passage_is_traversed_thanks_to_exit_targets(monkeypatch):
+    # an 8 cm sliver between two large areas (what a quadtree leaves along a diagonal wall);
+    # the reference cuts into it at speed, so the robot arrives above the sliver's portal
+    rects = [[0.0, 0.0, 2.0, 1.0], [2.0, 0.0, 2.4, 0.08], [2.4, 0.0, 4.0, 1.0]]
+    areas = make_areas(rects)
+    wps = [[0.5, 0.6], [1.6, 0.6], [2.0, 0.04], [2.4, 0.04], [2.8, 0.6], [3.5, 0.6]]
+    plan = make_plan(areas, [0, 1, 2], wps, speed=1.0)
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
+    ok, path, _ = run_closed_loop(ctl, [0.5, 0.6, 0.0], plan.goal, areas.rects)
+    assert ok and inside_union(path, areas.rects).all()
+    # without the exit targets the far reference pins the plan to the wall above the portal
+    stuck = SAMPC(ROBOT, areas, plan, MPCConfig())
+    monkeypatch.setattr(stuck, "_exit_targets", lambda xr, s, p0, yaw0: xr)
+    ok, path, _ = run_closed_loop(stuck, [0.5, 0.6, 0.0], plan.goal, areas.rects, steps=150)
+    assert not ok and path[-1, 0] < 2.0
+
+
 def test_closed_loop_with_measurement_noise_stays_inside(u_case):
     areas, plan = u_case
     ctl = SAMPC(ROBOT, areas, plan, MPCConfig(box_margin=0.04))
