@@ -33,7 +33,6 @@ import numpy as np
 
 from sanav_mj.control.base import Observation
 from sanav_mj.control.ocp import (
-    SolverSettings,
     make_backend,
     shift_bound_multipliers,
     shift_inputs,

@@ -535,17 +535,18 @@ class SAMPC:
     **Targets beyond the assigned area.** A stage whose reference sample lies in a corridor
     area *ahead* of the stage's chain member cannot reach it; its position target is the
     reference sample projected onto the central half of the exit region of the member,
-    ``shrink(C_{s(k)} ∩ C_{s(k)+1})``, and its yaw target the bearing from the robot to that point (when it is
-    more than 2 cm away). Without this the far reference pulls the plan against the nearest wall
-    of the current area, which in a narrow passage need not touch the portal to the next
-    one: the plan stops at the wall, the assignment never advances and the robot stalls
-    (seen on ``v_shape``). With it the plan heads for the portal, the guess enters the
-    intersection and the assignment advances next step.
+    ``shrink(C_{s(k)} ∩ C_{s(k)+1})``, and its yaw target the bearing from the robot to that
+    point (when it is more than 2 cm away). Without this the far reference pulls the plan
+    against the nearest wall of the current area, which in a narrow passage need not touch
+    the portal to the next one: the plan stops at the wall, the assignment never advances
+    and the robot stalls (seen on ``v_shape``, where the corridor threads 5-15 cm slivers).
+    With it the plan heads for the portal, the guess enters the intersection and the
+    assignment advances next step.
 
     **Safety between samples.** ``p_k in S_k ⊂ C_{s(k)}`` and ``p_{k+1} in S_{k+1} ⊂ C_{s(k)}``,
     so the chord ``[p_k, p_{k+1}]`` lies in the convex member ``C_{s(k)}``, which lies in the
     union of safe areas. The nominal robot drives an arc, not the chord; the arc stays within
-    ``|v w| dt^2 / 8`` of it (:func:`~sanav_mj.control.unicycle.arc_chord_deviation`, 1.2 mm
+    ``|v w| dt^2 / 8`` of it (:func:`~sanav_mj.control.unicycle.arc_chord_deviation`, 1.5 mm
     at 0.6 m/s and 2 rad/s with dt = 0.1 s), which the obstacle inflation margin of the
     safe-area map has to cover. For k = 0 the position is the measurement, a parameter: if
     it lies within ``S_0 = shrink(C_{s(0)})`` the argument holds from the first sample on.

@@ -51,7 +51,7 @@ def make_reference(waypoints, areas: SafeAreas, corridor, speed=0.5, dt=0.1, acc
     cum = np.concatenate(([0.0], np.cumsum(lengths)))
     total = cum[-1]
     # arc length over time: accelerate at `accel` to `speed`, cruise, decelerate to the end
-    s_list, t, s, v = [0.0], 0.0, 0.0, 0.0
+    s_list, s, v = [0.0], 0.0, 0.0
     while s < total - 1e-9:
         remaining = total - s
         v_brake = np.sqrt(2 * accel * remaining)

@@ -1,6 +1,5 @@
 """The shared tracking NLP: cost and constraints against a NumPy reference, caching, back-ends."""
 
-import casadi as cs
 import numpy as np
 import pytest
 

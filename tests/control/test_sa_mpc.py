@@ -157,8 +157,7 @@ def _check_prediction_constraints(ctl: SAMPC, cmd, tol=1e-3):
     n = ctl.N
     xs = cmd.predicted
     assert xs.shape == (n + 1, 3) and np.all(np.isfinite(xs))
-    u = rollout_inputs = None  # noqa: F841
-    # inputs are recovered from the predicted states' plan stored in the controller
+    # the inputs are the plan stored in the controller
     u = ctl._active.u
     np.testing.assert_allclose(rollout_np(xs[0], u, ctl.dt), xs, atol=1e-9)
     lim = ctl.limits
