@@ -125,7 +125,8 @@ def test_default_maps_are_generated_and_vary(tmp_path):
     a, b = training_scenario(100_000, tmp_path), training_scenario(100_001, tmp_path)
     assert training_clutter_config(100_000) == training_clutter_config(100_000)
     assert (tuple(a.bounds), len(a.obstacles)) != (tuple(b.bounds), len(b.obstacles))
-    again = training_scenario(100_000, tmp_path / "..")
+    (tmp_path / "again").mkdir()
+    again = training_scenario(100_000, tmp_path / "again")
     np.testing.assert_array_equal(again.bounds, a.bounds)
     assert [o.name for o in again.obstacles] == [o.name for o in a.obstacles]
     env = NavEnv(NavEnvConfig(n_maps=3))
