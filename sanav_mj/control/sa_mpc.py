@@ -71,9 +71,11 @@ class MPCConfig:
             be non-zero where the hard boxes are relaxed, which is near the robot, and each
             slot costs about 20 % of the objective's evaluation time.
         v_min: [m/s] lowest forward speed (negative: reversing allowed); None -> -0.25 * v_max.
-        v_max: [m/s] top forward speed; None -> 0.6 * robot.v_max.
-        w_max: [rad/s] top yaw rate magnitude; None -> 0.4 * robot.w_max. With the two
-            defaults a wheel never needs more than its top speed (0.6 + 0.4 = 1).
+        v_max: [m/s] top forward speed; None -> min(robot.v_max, r_w - w_max b / 2) with
+            r_w = wheel_speed_max * wheel_radius the top rim speed and b the track.
+        w_max: [rad/s] top yaw rate magnitude; None -> min(robot.w_max, 0.4 r_w / (b / 2)).
+            With the two defaults a wheel never needs more than its top speed at any corner
+            of the input box (|v| + |w| b / 2 <= r_w), and turning gets at most 40 % of it.
         a_max: [m/s^2] rate bound of v; None -> robot.a_max.
         alpha_max: [rad/s^2] rate bound of w; None -> robot.alpha_max.
         terminal_stop: constrain the last planned speed to zero (gives recursive feasibility
@@ -83,7 +85,9 @@ class MPCConfig:
         solver: ``"panoc"`` (alpaqa ALM + PANOC with L-BFGS, compiled: the paper's solver),
             ``"pantr"`` (alpaqa ALM + PANTR, Newton trust region, compiled) or ``"ipopt"``
             (through CasADi, the reference), see :mod:`sanav_mj.control.ocp`.
-        tol: optimality tolerance of the solver.
+        tol: optimality tolerance of the solver (PANOC: stationarity of the scaled problem;
+            1e-3 moves the first input by < 2e-3 m/s against a 1e-9 IPOPT solution and
+            saves about a quarter of PANOC's iterations against 1e-4, see docs/benchmarks.md).
         constraint_tol: [m] allowed constraint violation reported by the solver; a solution
             violating a constraint by more than 10x this is rejected.
         max_iter: solver iteration limit (PANOC: per ALM pass).
@@ -113,7 +117,7 @@ class MPCConfig:
     terminal_stop: bool = True
     box_margin: float = 0.02
     solver: str = "panoc"
-    tol: float = 1e-4
+    tol: float = 1e-3
     constraint_tol: float = 1e-4
     max_iter: int = 300
     max_outer_iter: int = 20
@@ -158,9 +162,11 @@ class MPCConfig:
 
     def limits(self, robot: RobotParams) -> InputLimits:
         """Resolve the input and rate bounds against the robot's parameters."""
-        v_max = self.v_max if self.v_max is not None else 0.6 * robot.v_max
+        rim = robot.wheel_speed_max * robot.wheel_radius  # [m/s] top wheel rim speed
+        half_track = 0.5 * robot.track
+        w_max = self.w_max if self.w_max is not None else min(robot.w_max, 0.4 * rim / half_track)
+        v_max = self.v_max if self.v_max is not None else min(robot.v_max, rim - w_max * half_track)
         v_min = self.v_min if self.v_min is not None else -0.25 * v_max
-        w_max = self.w_max if self.w_max is not None else 0.4 * robot.w_max
         a_max = self.a_max if self.a_max is not None else robot.a_max
         alpha_max = self.alpha_max if self.alpha_max is not None else robot.alpha_max
         if w_max * self.dt / 2 > SINC_HALF_ANGLE_MAX:

@@ -19,6 +19,7 @@ from sanav_mj.control.sa_mpc import (
     stage_boxes,
 )
 from sanav_mj.control.unicycle import rollout_np, step_np
+from sanav_mj.scene import RobotParams
 
 from mpc_cases import L_RECTS, ROBOT, inside_union, make_areas, make_plan
 
@@ -45,8 +46,11 @@ def test_config_rejects_bad_values_naming_the_field(kw, match):
 
 
 def test_config_limits_default_from_robot_and_respect_wheel_speed():
-    lim = MPCConfig().limits(ROBOT)
-    assert lim.v_max == pytest.approx(0.6 * ROBOT.v_max) and lim.w_max == pytest.approx(0.4 * ROBOT.w_max)
+    lim = MPCConfig().limits(ROBOT)  # ROBOT: rim speed 2 m/s, track 0.38 m, w_max 10.5 rad/s
+    assert lim.w_max == pytest.approx(0.4 * 2.0 / 0.19) and lim.v_max == pytest.approx(2.0 - lim.w_max * 0.19)
+    slow_turner = RobotParams(**{**ROBOT.__dict__, "w_max": 3.0})
+    lim3 = MPCConfig().limits(slow_turner)
+    assert lim3.w_max == 3.0 and lim3.v_max == pytest.approx(2.0 - 3.0 * 0.19)
     assert lim.a_max == ROBOT.a_max and lim.alpha_max == ROBOT.alpha_max and lim.v_min < 0
     # wheel rim speed at the corners of the input box stays within the wheel's top speed
     rim = lim.v_max + lim.w_max * ROBOT.track / 2
