@@ -2,9 +2,11 @@
 
 1. Record: a kinematic closed loop (exact unicycle plant with 5 % speed / yaw-rate gain
    mismatch) drives SA-MPC, solved tightly by IPOPT, through a synthetic L-shaped corridor
-   of three safe areas and a U-shaped one. Every problem the controller poses (measured
-   state, previous input, reference, stage boxes, J_SA areas, bounds) is recorded with its
-   tight optimum.
+   of three safe areas, a U-shaped one and (unless ``--no-scenarios``) the five built-in
+   scenarios after mapping and planning (start yaw from seed 0). The robot parameters are
+   those of ``models/diff_drive.xml``. Every problem the controller poses (measured state,
+   previous input, reference, stage boxes, J_SA areas, bounds) is recorded with its tight
+   optimum.
 2. Replay: each back-end solves the same sequence in order, warm-started from its own
    shifted previous solution (primal and multipliers) exactly as the controller does. Wall
    and CPU time of each ``backend.solve`` call (the Python call included) are measured, and
@@ -44,11 +46,17 @@ from sanav_mj.mapping.safe_areas import SafeAreas
 from sanav_mj.planning.reference import Plan, Reference
 from sanav_mj.scene import RobotParams
 
-# A Jackal-sized robot (the values the MuJoCo model gives, rounded).
-ROBOT = RobotParams(
-    wheel_radius=0.1, track=0.38, footprint_radius=0.3, wheel_speed_max=20.0,
-    v_max=2.0, w_max=10.5, a_max=1.5, alpha_max=6.0,
-)  # fmt: skip
+BUILTIN = ("single_rect", "double_rect", "u_shape", "v_shape", "complex")
+
+
+def robot_params() -> RobotParams:
+    """The robot of ``models/diff_drive.xml`` (read through a built-in scenario)."""
+    from sanav_mj.scene import load_scenario
+
+    return load_scenario("single_rect").robot
+
+
+ROBOT = robot_params()
 
 CORRIDORS = {
     # name: (rects, corridor, waypoints, start yaw)
@@ -104,6 +112,21 @@ def make_case(name: str, speed: float = 0.8, dt: float = 0.1) -> tuple[SafeAreas
     return areas, plan
 
 
+def builtin_cases() -> dict:
+    """The built-in scenarios mapped and planned as the pipeline does: name -> (areas, plan, start yaw)."""
+    from sanav_mj.eval.episode import initial_pose, prepare
+    from sanav_mj.scene import load_scenario
+
+    out = {}
+    for name in BUILTIN:
+        scenario = load_scenario(name)
+        start = initial_pose(scenario, 0, None)
+        prep = prepare(scenario, start=start)
+        if prep.plan.ok:
+            out[name] = (prep.areas, prep.plan, float(start[2]))
+    return out
+
+
 def closed_loop(ctl: SAMPC, plan: Plan, yaw: float, steps: int = 400, record: list | None = None) -> dict:
     """Drive the controller with the mismatched kinematic plant; optionally record each OCP."""
     be = ctl.backend
@@ -142,6 +165,7 @@ def closed_loop(ctl: SAMPC, plan: Plan, yaw: float, steps: int = 400, record: li
         "track_err_max_m": float(np.max(err)),
         "failures": ctl.stats.failures,
         "counts": dict(ctl.stats.counts),
+        "step_ms": ms.tolist(),
     }
 
 
@@ -223,19 +247,24 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--solvers", nargs="+", default=["panoc", "pantr", "ipopt"])
     ap.add_argument("--horizon", type=int, default=20)
     ap.add_argument("--no-build", action="store_true", help="skip the construction-time measurement")
+    ap.add_argument("--no-scenarios", action="store_true", help="only the synthetic L and U corridors")
     ap.add_argument("--json", type=Path, help="write all results to this file")
     args = ap.parse_args(argv)
 
     base = MPCConfig(horizon=args.horizon)
     # 1. record the sequence with a tight IPOPT
     problems = []
-    cases = {name: make_case(name) for name in CORRIDORS}
-    for name, (areas, plan) in cases.items():
+    cases = {name: (*make_case(name), CORRIDORS[name][3]) for name in CORRIDORS}
+    if not args.no_scenarios:
+        cases.update(builtin_cases())
+    for name, (areas, plan, yaw) in cases.items():
         ctl = SAMPC(ROBOT, areas, plan, base.replace(solver="ipopt", tol=1e-9, constraint_tol=1e-9))
-        closed_loop(ctl, plan, CORRIDORS[name][3], record=problems)
+        n0 = len(problems)
+        closed_loop(ctl, plan, yaw, record=problems)
+        print(f"recorded {len(problems) - n0} problems on {name}")
     ocp = ctl.ocp
     rate_step = ctl.limits.rate() * ctl.dt
-    print(f"recorded {len(problems)} problems (N = {args.horizon}) from closed loops on the L and U corridors")
+    print(f"recorded {len(problems)} problems in all (N = {args.horizon})")
 
     results: dict = {"horizon": args.horizon, "problems": len(problems), "replay": {}, "closed_loop": {}, "build": {}}
     for solver in args.solvers:
@@ -243,9 +272,9 @@ def main(argv: list[str] | None = None) -> int:
         replay(backend, ocp, problems[:20], rate_step)  # warm-up (page-in, first calls)
         results["replay"][solver] = replay(backend, ocp, problems, rate_step)
         loops = {}
-        for name, (areas, plan) in cases.items():
+        for name, (areas, plan, yaw) in cases.items():
             ctl = SAMPC(ROBOT, areas, plan, base.replace(solver=solver))
-            loops[name] = closed_loop(ctl, plan, CORRIDORS[name][3])
+            loops[name] = closed_loop(ctl, plan, yaw)
         results["closed_loop"][solver] = loops
         if not args.no_build and solver in ("panoc", "pantr", "ipopt"):
             results["build"][solver] = build_times(solver, args.horizon)
@@ -263,6 +292,9 @@ def main(argv: list[str] | None = None) -> int:
         )
     print("\nClosed loops (controller step incl. Python, tracking error to the reference path)")
     for solver, loops in results["closed_loop"].items():
+        ms = np.concatenate([r["step_ms"] for r in loops.values()])
+        print(f"{solver:8s} all: step ms mean {ms.mean():.3f} p50 {np.median(ms):.3f} p99 {np.percentile(ms, 99):.2f} "
+              f"max {ms.max():.2f} over {len(ms)} steps")  # fmt: skip
         for name, r in loops.items():
             print(
                 f"{solver:8s} {name}: reached={r['reached']} steps={r['steps']} step ms mean {r['step_ms_mean']:.3f} "

@@ -1,7 +1,7 @@
 """The unicycle tracking optimal-control problem and its solver back-ends.
 
 One builder, :func:`build_tracking_ocp`, writes the nonlinear program shared by the MPC
-controllers (SA-MPC now, the obstacle-penalty MPC baseline later): single shooting over the
+controllers (SA-MPC and the obstacle-penalty MPC baseline): single shooting over the
 inputs of the exact unicycle (:mod:`sanav_mj.control.unicycle`), the paper's tracking cost
 and an optional extra position cost term supplied by the controller
 (:class:`PositionCost`: the safe-area penalty J_SA for SA-MPC, obstacle polygons for the
@@ -30,9 +30,9 @@ Back-ends (same NLP, same parameters, same warm start):
 
 - :class:`PanocBackend`: alpaqa's augmented Lagrangian method with PANOC inner solver and
   L-BFGS directions (the paper's solver); :class:`PantrBackend`: the same with PANTR
-  (Newton trust-region directions from Hessian-vector products). The CasADi functions and their gradients are generated as C, compiled
-  with the system C compiler and cached on disk under a hash of the problem, so a second
-  process only loads the shared library.
+  (Newton trust-region directions from Hessian-vector products). The CasADi functions
+  and their gradients are generated as C, compiled with the system C compiler and cached
+  on disk under a hash of the problem, so a second process only loads the shared library.
 - :class:`IpoptBackend`: CasADi's IPOPT interface (exact Hessian, MUMPS), the reference.
 """
 
