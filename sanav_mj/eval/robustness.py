@@ -60,6 +60,7 @@ def run_robustness(
     workers: int,
     out: Path,
     time_limit_s: float = 60.0,
+    fixed: Mismatch = Mismatch(),
 ) -> list[dict[str, Any]]:
     """Run the sweep and write CSVs and heat maps into ``out``.
 
@@ -71,21 +72,32 @@ def run_robustness(
         workers: worker processes.
         out: output folder (created).
         time_limit_s: [s] simulated time limit of each run.
+        fixed: mismatch applied at every grid point in addition to the swept keys (e.g. a
+            sweep of friction x delay on a robot whose wheels are also 10 % small); it may
+            not set a swept key.
 
     Returns:
         One summary row per grid point.
+
+    Raises:
+        MismatchError: ``fixed`` sets a swept key.
     """
     from sanav_mj.eval.plots import plot_heatmap
     from sanav_mj.scene import load_scenario
 
     for name in scenarios:
         load_scenario(name)
+    base = fixed.changed()
+    for key, _ in sweep:
+        if key in base:
+            raise MismatchError(f"mismatch {key}: both swept and fixed (fixed {key}={base[key]!r})")
+    base_items = tuple(f"{k}={_fmt(k, v)}" for k, v in base.items())
     out.mkdir(parents=True, exist_ok=True)
     (xk, xv), (yk, yv) = sweep[0], (sweep[1] if len(sweep) > 1 else ("", [math.nan]))
     jobs = []
     for yi, y in enumerate(yv):
         for xi, x in enumerate(xv):
-            items = [f"{xk}={_fmt(xk, x)}"] + ([f"{yk}={_fmt(yk, y)}"] if yk else [])
+            items = [f"{xk}={_fmt(xk, x)}"] + ([f"{yk}={_fmt(yk, y)}"] if yk else []) + list(base_items)
             for s in scenarios:
                 for k in range(seeds):
                     jobs.append(Job(s, controller, k, tuple(items), time_limit_s, None,
@@ -98,6 +110,7 @@ def run_robustness(
         if yk:
             r[yk] = d[yk]
         r["_cell"] = d["_cell"]
+        r["mismatch"] = " ".join(f"{k}={v}" for k, v in d.get("mismatch", {}).items())
         rows.append(r)
     write_csv([{k: v for k, v in r.items() if k != "_cell"} for r in rows], out / "robustness.csv",
               columns=(xk,) + ((yk,) if yk else ()) + CSV_COLUMNS)

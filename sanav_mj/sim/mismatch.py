@@ -132,7 +132,9 @@ def mismatched_model(scenario, mismatch: Mismatch):
     Edits go through ``mujoco.MjSpec`` re-parsed from the scenario file, so the nominal
     ``scenario.model`` is never touched:
 
-    - ``wheel_radius``: both wheel geoms' sizes scaled (radius and width);
+    - ``wheel_radius``: both wheel geoms' radii scaled (the tyre width is kept) and the
+      wheel hubs moved up or down by the change of radius, so the chassis and the casters
+      stay at their nominal height above the floor and only the rolling radius differs;
     - ``track``: the wheel bodies' lateral offsets scaled;
     - ``mass``: every robot geom's mass scaled (body inertias follow from the geoms);
     - ``actuator_gain``: the wheel velocity servos' kv scaled (gain and bias);
@@ -155,17 +157,25 @@ def mismatched_model(scenario, mismatch: Mismatch):
     m = mismatch
     for name in _WHEELS:
         geom = spec.geom(name)
+        body = spec.body(name)
         if m.wheel_radius != 1.0:
             size = list(geom.size)
+            r0 = size[0]
             size[0] *= m.wheel_radius
             size[1] *= m.wheel_radius
             geom.size = size
+            # Keep the chassis at its nominal height: the hub moves by the change of radius,
+            # so the wheels still reach the floor and the casters keep their share of the
+            # weight (without this a smaller wheel hangs in the air with the robot resting on
+            # its casters, and a larger one lifts the casters and tilts the chassis).
+            pos = list(body.pos)
+            pos[2] += size[0] - r0
+            body.pos = pos
         if m.friction is not None:
             fr = list(geom.friction)
             fr[0] = m.friction
             geom.friction = fr
         if m.track != 1.0:
-            body = spec.body(name)
             pos = list(body.pos)
             pos[1] *= m.track
             body.pos = pos

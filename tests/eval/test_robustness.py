@@ -1,0 +1,270 @@
+"""Robustness sweeps: ``parse_sweep``, the sweep outputs, and every mismatch key's effect on the plant."""
+
+from __future__ import annotations
+
+import csv
+import math
+
+import numpy as np
+import pytest
+
+from sanav_mj.control.base import Command
+from sanav_mj.eval import robustness
+from sanav_mj.eval.robustness import parse_sweep, run_robustness
+from sanav_mj.scene import load_scenario
+from sanav_mj.sim.mismatch import MismatchError, mismatched_model, parse_mismatch
+from sanav_mj.sim.plant import Plant
+from sanav_mj.sim.runner import RunConfig, run_episode
+
+PNGS = ("success_rate.png", "collision_rate.png", "min_clearance.png")
+
+# --------------------------------------------------------------------------- parse_sweep
+
+
+def test_parse_sweep_known_answers():
+    assert parse_sweep(["wheel_radius=0.9,1.0,1.1"]) == [("wheel_radius", [0.9, 1.0, 1.1])]
+    assert parse_sweep(["friction=0.3,1", "delay=0,1,2"]) == [("friction", [0.3, 1.0]), ("delay", [0.0, 1.0, 2.0])]
+    assert parse_sweep(["pos_noise=0.02"]) == [("pos_noise", [0.02])]
+
+
+@pytest.mark.parametrize(
+    "items, fragment",
+    [
+        ([], "one or two"),
+        (["mass=1", "track=1", "delay=1"], "one or two"),
+        (["wheel_radius"], "expected KEY=V1,V2"),
+        (["wheel_radius="], "expected KEY=V1,V2"),
+        (["bogus=1,2"], "unknown key 'bogus'"),
+        (["mass=1", "mass=2"], "given twice"),
+        (["mass=1,x"], "comma-separated numbers"),
+        (["mass=1,,2"], "comma-separated numbers"),
+        (["wheel_radius=0.9,9"], "expected 0.5 <= value <= 1.5"),
+        (["delay=0,1.5"], "whole number"),
+        (["friction=nan"], "finite number"),
+    ],
+)
+def test_parse_sweep_errors_are_one_line(items, fragment):
+    with pytest.raises(MismatchError) as err:
+        parse_sweep(items)
+    assert fragment in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+# --------------------------------------------------------------------------- the sweep
+
+
+def _read(path):
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _assert_pngs(out):
+    for name in PNGS:
+        data = (out / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n", name
+
+
+def test_tiny_real_sweep_writes_rows_and_heat_maps(tmp_path):
+    out = tmp_path / "rb"
+    summary = run_robustness(["single_rect"], parse_sweep(["wheel_radius=0.9,1.1"]), seeds=1,
+                             controller="sa-mpc", workers=1, out=out, time_limit_s=30.0)
+    runs = _read(out / "robustness.csv")
+    assert [float(r["wheel_radius"]) for r in runs] == [0.9, 1.1]
+    assert {r["scenario"] for r in runs} == {"single_rect"} and {r["seed"] for r in runs} == {"0"}
+    cells = _read(out / "summary.csv")
+    assert [float(c["wheel_radius"]) for c in cells] == [0.9, 1.1]
+    for run, cell, row in zip(runs, cells, summary):
+        assert int(cell["runs"]) == 1
+        assert float(cell["success_rate"]) == (100.0 if run["success"] == "True" else 0.0)
+        assert float(cell["collision_rate"]) == (100.0 if int(run["collisions"]) > 0 else 0.0)
+        assert float(cell["min_clearance_m"]) == pytest.approx(float(run["min_clearance_m"]))
+        assert cell["reasons"] == f"{run['reason']} 1"
+        assert row["runs"] == 1
+    _assert_pngs(out)
+
+
+def _fake_doc(job):
+    """A run document whose outcome is a known function of the job (no simulation)."""
+    tags = dict(job.tags)
+    x, y = tags["mass"], tags["delay"]
+    success = not (y == 1 and job.seed == 0)
+    collided = x == 2.0 and y == 1 and job.seed == 1
+    reason = "goal" if success else "stuck"
+    if collided:
+        success, reason = False, "collision"
+    stats = {"mean": 1.0, "max": 2.0, "std": 0.5, "p50": 1.0, "p99": 2.0}
+    return {
+        "scenario": job.scenario, "controller": job.controller, "seed": job.seed, "success": success,
+        "reason": reason, "steps": 10, "sim_time_s": 1.0, "path_length_m": 1.0,
+        "min_clearance_m": -0.01 if collided else 0.1 * x + 0.01 * job.seed, "collisions": int(collided),
+        "safe_area_violations": 0, "solve_ms": stats, "pipeline_ms": stats,
+        "mismatch": dict(item.split("=") for item in job.mismatch),
+        **tags,
+    }
+
+
+def test_two_key_aggregation_known_answers(tmp_path, monkeypatch):
+    seen = []
+
+    def fake_run_jobs(jobs, workers, desc):
+        seen.extend(jobs)
+        return [_fake_doc(j) for j in jobs]
+
+    monkeypatch.setattr(robustness, "run_jobs", fake_run_jobs)
+    out = tmp_path / "rb"
+    summary = run_robustness(["single_rect"], parse_sweep(["mass=1,2", "delay=0,1"]), seeds=3,
+                             controller="sa-mpc", workers=1, out=out,
+                             fixed=parse_mismatch(["friction=0.5"]))
+    assert len(seen) == 2 * 2 * 3
+    assert {j.mismatch for j in seen} == {
+        ("mass=1.0", "delay=0", "friction=0.5"), ("mass=2.0", "delay=0", "friction=0.5"),
+        ("mass=1.0", "delay=1", "friction=0.5"), ("mass=2.0", "delay=1", "friction=0.5"),
+    }
+    by_cell = {(r["mass"], r["delay"]): r for r in summary}
+    assert by_cell[(1.0, 0.0)]["success_rate"] == 100.0
+    assert by_cell[(1.0, 1.0)]["success_rate"] == pytest.approx(200 / 3)
+    assert by_cell[(2.0, 1.0)]["success_rate"] == pytest.approx(100 / 3)
+    assert by_cell[(2.0, 1.0)]["collision_rate"] == pytest.approx(100 / 3)
+    assert by_cell[(2.0, 1.0)]["reasons"] == "collision 1, goal 1, stuck 1"
+    assert by_cell[(1.0, 0.0)]["min_clearance_m"] == pytest.approx(0.1)
+    assert by_cell[(2.0, 0.0)]["min_clearance_m"] == pytest.approx(0.2)
+    assert by_cell[(2.0, 1.0)]["min_clearance_m"] == pytest.approx(-0.01)
+    assert len(_read(out / "robustness.csv")) == 12
+    assert [(float(c["mass"]), float(c["delay"])) for c in _read(out / "summary.csv")] == [
+        (1.0, 0.0), (2.0, 0.0), (1.0, 1.0), (2.0, 1.0)]
+    _assert_pngs(out)
+
+
+def test_fixed_mismatch_must_not_repeat_a_swept_key(tmp_path):
+    with pytest.raises(MismatchError, match="both swept and fixed"):
+        run_robustness(["single_rect"], parse_sweep(["mass=1,2"]), seeds=1, controller="sa-mpc",
+                       workers=1, out=tmp_path, fixed=parse_mismatch(["mass=2"]))
+
+
+# --------------------------------------------------------------------------- each key in the plant
+
+DT = 0.02  # [s] command period of the open-loop drives
+
+
+@pytest.fixture
+def open_floor(write_scenario):
+    """A large empty floor (one far-away post: the plant needs no obstacles, the loader wants a world)."""
+    floor = '<geom name="floor" type="plane" pos="0 0 0" size="50 50 0.1"/>'
+    post = '<geom name="post" type="box" pos="45 45 0.5" size="0.1 0.1 0.5"/>'
+    return load_scenario(write_scenario(post, floor=floor))
+
+
+def _drive(scenario, items, v, w, duration_s):
+    """Hold (v, w) [m/s, rad/s] from rest; returns (S, 2) measured body (v, w) and the plant."""
+    m = parse_mismatch(items)
+    plant = Plant(scenario, mismatched_model(scenario, m) if m.physical else None)
+    plant.reset(np.zeros(3))
+    out = []
+    for _ in range(int(round(duration_s / DT))):
+        plant.set_wheel_command(v, w)
+        plant.advance(DT)
+        out.append(plant.body_velocity())
+    return np.array(out), plant
+
+
+@pytest.mark.parametrize("scale", [0.9, 1.1])
+def test_wheel_radius_scales_the_speed_and_keeps_the_chassis_height(open_floor, scale):
+    nominal, p0 = _drive(open_floor, [], 0.5, 0.0, 2.0)
+    scaled, p1 = _drive(open_floor, [f"wheel_radius={scale}"], 0.5, 0.0, 2.0)
+    ratio = scaled[-10:, 0].mean() / nominal[-10:, 0].mean()
+    assert ratio == pytest.approx(scale, abs=0.01)
+    # wheels on the floor, chassis at its nominal height (a smaller wheel used to hang in
+    # the air with the robot resting on its casters: ratio 0)
+    assert p1.pose()[:2] != pytest.approx(p0.pose()[:2])
+    assert p1.data.qpos[2] == pytest.approx(p0.data.qpos[2], abs=2e-3)
+
+
+def test_track_scales_the_yaw_rate_inversely(open_floor):
+    nominal, _ = _drive(open_floor, [], 0.0, 1.0, 2.0)
+    wide, _ = _drive(open_floor, ["track=1.1"], 0.0, 1.0, 2.0)
+    assert wide[-10:, 1].mean() / nominal[-10:, 1].mean() == pytest.approx(1 / 1.1, abs=0.01)
+
+
+def test_low_friction_breaks_a_fast_turn(open_floor):
+    # 1.4 m/s at 2.5 rad/s needs 3.5 m/s^2 of lateral grip: fine at mu = 1, not at mu = 0.3
+    nominal, _ = _drive(open_floor, [], 1.4, 2.5, 4.0)
+    slippery, _ = _drive(open_floor, ["friction=0.3"], 1.4, 2.5, 4.0)
+    err_nominal = np.abs(nominal[-25:] - (1.4, 2.5)).mean(axis=0)
+    err_slippery = np.abs(slippery[-25:] - (1.4, 2.5)).mean(axis=0)
+    assert err_nominal[0] < 0.02 and err_nominal[1] < 0.03
+    assert err_slippery[1] > 0.1 and err_slippery[0] > 0.3
+
+
+@pytest.mark.parametrize("items", [["mass=2"], ["torque_limit=0.3"]])
+def test_mass_and_torque_limit_slow_the_acceleration(open_floor, items):
+    nominal, _ = _drive(open_floor, [], 1.0, 0.0, 0.2)
+    heavy, _ = _drive(open_floor, items, 1.0, 0.0, 0.2)
+    assert nominal[-1, 0] > 0.95
+    assert heavy[-1, 0] < 0.75 * nominal[-1, 0]
+
+
+def test_actuator_gain_slows_the_servo(open_floor):
+    # a small step keeps the servo out of its torque limit, where only the gain matters
+    nominal, _ = _drive(open_floor, [], 0.05, 0.0, 0.06)
+    soft, _ = _drive(open_floor, ["actuator_gain=0.3"], 0.05, 0.0, 0.06)
+    assert soft[-1, 0] < 0.85 * nominal[-1, 0]
+
+
+class _Script:
+    """Ramps v to 1 m/s over 10 steps at a constant yaw rate; records nothing itself."""
+
+    name = "script"
+    dt = 0.1
+    needs_ranges = False
+
+    def __init__(self):
+        self.k = 0
+
+    def reset(self, pose):
+        self.k = 0
+
+    def step(self, obs):
+        self.k += 1
+        return Command(v=min(0.1 * self.k, 1.0), w=0.3, solve_ms=0.0)
+
+
+def _episode(scenario, items, seed=1):
+    return run_episode(Plant(scenario), _Script(), np.zeros(3), np.array([40.0, 40.0]),
+                       RunConfig(time_limit_s=10.0), parse_mismatch(items), np.random.default_rng(seed))
+
+
+@pytest.mark.parametrize("delay", [1, 3])
+def test_delay_applies_each_command_that_many_steps_late(open_floor, delay):
+    tr = _episode(open_floor, [f"delay={delay}"]).trace
+    cmd, applied = np.array(tr.cmd), np.array(tr.applied)
+    assert np.all(applied[:delay] == 0.0)
+    np.testing.assert_array_equal(applied[delay:], cmd[:-delay])
+
+
+def test_pose_noise_has_the_requested_std(open_floor):
+    tr = _episode(open_floor, ["pos_noise=0.05", "yaw_noise=0.035"]).trace
+    err = np.array(tr.measured) - np.array(tr.pose)
+    assert err.shape == (100, 3)
+    # 200 / 100 samples: the sample std is within 15 % of the true one with high probability
+    assert err[:, :2].std() == pytest.approx(0.05, rel=0.15)
+    assert err[:, 2].std() == pytest.approx(0.035, rel=0.2)
+    assert abs(err[:, :2].mean()) < 0.015
+
+
+def test_jitter_spreads_the_control_period(open_floor):
+    tr = _episode(open_floor, ["jitter=0.3"]).trace
+    periods = np.diff(tr.t)
+    assert periods.min() >= 0.07 - 1e-9 and periods.max() <= 0.13 + 1e-9
+    # uniform on [0.07, 0.13] s, rounded to the 2 ms physics step: std 0.1 * 0.3 / sqrt(3)
+    assert periods.std() == pytest.approx(0.03 / math.sqrt(3), rel=0.2)
+    assert np.diff(_episode(open_floor, []).trace.t) == pytest.approx(0.1)
+
+
+def test_solve_budget_reaches_the_solver():
+    from sanav_mj.control.factory import make_controller
+    from sanav_mj.eval.episode import prepare
+
+    prep = prepare("single_rect")
+    ctrl = make_controller("sa-mpc", prep.scenario, prep.grid, prep.areas, prep.plan, solve_budget_ms=0.5)
+    assert ctrl.config.solve_budget_ms == 0.5
+    assert ctrl.config.solver_settings().budget_ms == 0.5
