@@ -149,10 +149,11 @@ def run_robustness(
         w.writerows(summary)
     ylabels = [_fmt(yk, y) for y in yv] if yk else [""]
     xlabels = [_fmt(xk, x) for x in xv]
+    note = f"\nwith {' '.join(base_items)}" if base_items else ""
     for values, name, title in (
-        (success, "success_rate", f"{controller}: success rate [%]"),
-        (collision, "collision_rate", f"{controller}: collision rate [%]"),
-        (clearance, "min_clearance", f"{controller}: min clearance [m]"),
+        (success, "success_rate", f"{controller}: success rate [%]{note}"),
+        (collision, "collision_rate", f"{controller}: collision rate [%]{note}"),
+        (clearance, "min_clearance", f"{controller}: min clearance [m]{note}"),
     ):
         plot_heatmap(values, xk, xlabels, yk, ylabels, title, out / f"{name}.png")
     return summary
