@@ -27,37 +27,27 @@ class _Parser(argparse.ArgumentParser):
         raise BadInput(f"{self.prog}: {message}")
 
 
-def _positive_float(name: str):
+def _float_arg(name: str, positive: bool = False):
+    """argparse type: a finite float (and > 0 when ``positive``), errors naming ``name``."""
+
     def parse(text: str) -> float:
         try:
             value = float(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{name}: expected a number, got {text!r}") from None
-        if not math.isfinite(value) or value <= 0:
-            raise argparse.ArgumentTypeError(f"{name}: expected a finite number > 0, got {text!r}")
+        if not math.isfinite(value) or (positive and value <= 0):
+            rule = "a finite number > 0" if positive else "a finite number"
+            raise argparse.ArgumentTypeError(f"{name}: expected {rule}, got {text!r}")
         return value
 
     return parse
 
 
 def _resolution(text: str) -> float:
-    value = _positive_float("--resolution")(text)
+    value = _float_arg("--resolution", positive=True)(text)
     if not 0.005 <= value <= 1.0:
         raise argparse.ArgumentTypeError(f"--resolution: expected 0.005 <= M <= 1.0 metres, got {text!r}")
     return value
-
-
-def _finite_float(name: str):
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name}: expected a number, got {text!r}") from None
-        if not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f"{name}: expected a finite number, got {text!r}")
-        return value
-
-    return parse
 
 
 def _count(name: str, lo: int = 1, hi: int = 10_000):
@@ -92,13 +82,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scenario", help="MJCF file or built-in scenario name")
     r.add_argument("--controller", choices=CONTROLLERS, default="sa-mpc")
     r.add_argument("--seed", type=_count("--seed", 0, 2**31 - 1), default=0)
-    r.add_argument("--yaw", type=_finite_float("--yaw"), default=None, help="initial yaw [rad] (default: from the seed)")
+    r.add_argument("--yaw", type=_float_arg("--yaw"), default=None, help="initial yaw [rad] (default: from the seed)")
     r.add_argument("--resolution", type=_resolution, default=0.05)
     r.add_argument("--json", type=Path)
     r.add_argument("--rrd", type=Path)
     r.add_argument("--plot", type=Path)
     r.add_argument("--mismatch", nargs="+", default=[], metavar="KEY=VALUE")
-    r.add_argument("--time-limit", type=_positive_float("--time-limit"), default=60.0, help="[s] simulated")
+    r.add_argument("--time-limit", type=_float_arg("--time-limit", positive=True), default=60.0, help="[s] simulated")
 
     b = sub.add_parser("bench", help="the paper's comparison: success rates and timing table")
     b.add_argument("scenarios", nargs="*", help="scenarios (default: all built-in)")
