@@ -547,7 +547,12 @@ class SAMPC:
     the portal to the next one: the plan stops at the wall, the assignment never advances
     and the robot stalls (seen on ``v_shape``, where the corridor threads 5-15 cm slivers).
     With it the plan heads for the portal, the guess enters the intersection and the
-    assignment advances next step.
+    assignment advances next step. The reference *inputs* of such stages are zero: the
+    target stands still, and the reference's own speed there (it belongs to a sample beyond
+    the portal) made the optimal plan drive through the target and out of the thin
+    intersection, so the guess never fitted the next member and the assignment never
+    advanced; the plan then kept postponing its motion and the robot stalled for good
+    (4 of 100 generated clutter maps, e.g. a 10 cm portal entered at right angles).
 
     **Safety between samples.** ``p_k in S_k ⊂ C_{s(k)}`` and ``p_{k+1} in S_{k+1} ⊂ C_{s(k)}``,
     so the chord ``[p_k, p_{k+1}]`` lies in the convex member ``C_{s(k)}``, which lies in the
@@ -720,12 +725,17 @@ class SAMPC:
         self._horizon_idx = idx
         return xr, ur
 
-    def _exit_targets(self, xr: np.ndarray, s: np.ndarray, p0: np.ndarray, yaw0: float) -> np.ndarray:
-        """Reference states pulled into reach: see "Targets beyond the assigned area" in the class doc."""
+    def _exit_targets(
+        self, xr: np.ndarray, ur: np.ndarray, s: np.ndarray, p0: np.ndarray, yaw0: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Reference states (N+1, 3) and inputs (N, 2) pulled into reach: see "Targets beyond
+        the assigned area" in the class doc."""
         ahead = self._ref_chain[self._horizon_idx] > s
         ahead &= s + 1 < len(self.chain)
         if not ahead.any():
-            return xr
+            return xr, ur
+        ur = ur.copy()
+        ur[ahead[1:]] = 0.0  # a target that stands still: no reference motion into it
         out = xr.copy()
         k = np.flatnonzero(ahead)
         box = self.chain.advance[s[k] + 1]
@@ -737,7 +747,7 @@ class SAMPC:
         if far.any():
             bearing = np.arctan2(d[far, 1], d[far, 0])
             out[k[far], 2] = yaw0 + (bearing - yaw0 + np.pi) % (2 * np.pi) - np.pi
-        return out
+        return out, ur
 
     def _guess_inputs(self) -> np.ndarray:
         """(N, 2) warm start: the rest of the active plan, then braking towards (0, 0)."""
@@ -824,7 +834,7 @@ class SAMPC:
         s = assign_stages(self.chain, guess[:, :2], self._first_candidates(), tol=self._check_tol)
         boxes = stage_boxes(self.chain, s)
         boxes_c = self._relaxed_boxes(boxes, x0[:2])
-        xr = self._exit_targets(xr, s, x0[:2], float(x0[2]))
+        xr, ur = self._exit_targets(xr, ur, s, x0[:2], float(x0[2]))
 
         z_lb = self._z_lb.copy()
         z_ub = self._z_ub.copy()

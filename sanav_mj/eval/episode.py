@@ -60,6 +60,33 @@ class RunOutcome:
     document: dict[str, Any]
 
 
+def planner_config(robot) -> Any:
+    """Planner settings matched to the SA-MPC: the reference's speed, yaw-rate and
+    acceleration caps are the planner's default fractions (0.8) of the MPC's resolved input
+    and rate bounds (``MPCConfig().limits(robot)``), not of the robot's, and its period is
+    the MPC's ``dt``. A reference faster than the MPC may drive (1.6 m/s against 1.43 m/s
+    for the MuJoCo robot) leaves the robot lagging behind it.
+
+    Args:
+        robot: the robot's nominal parameters.
+
+    Returns:
+        A :class:`sanav_mj.planning.PlannerConfig`.
+    """
+    from sanav_mj.control.sa_mpc import MPCConfig
+    from sanav_mj.planning import PlannerConfig
+
+    base = PlannerConfig()
+    mpc = MPCConfig()
+    lim = mpc.limits(robot)
+    return PlannerConfig(
+        dt=mpc.dt,
+        speed_fraction=min(1.0, base.speed_fraction * lim.v_max / robot.v_max),
+        yaw_rate_fraction=min(1.0, base.yaw_rate_fraction * lim.w_max / robot.w_max),
+        accel_fraction=min(1.0, base.accel_fraction * lim.a_max / robot.a_max),
+    )
+
+
 def prepare(
     spec: str | Path | Scenario,
     resolution: float = 0.05,
@@ -82,7 +109,7 @@ def prepare(
     m = build_map(scenario.obstacles, scenario.bounds, inflation, MapConfig(resolution=resolution, merge=merge))
     t0 = time.perf_counter()
     pose = scenario.start if start is None else np.asarray(start, dtype=float)
-    plan = make_plan(m.areas, pose, scenario.goal, scenario.robot)
+    plan = make_plan(m.areas, pose, scenario.goal, scenario.robot, planner_config(scenario.robot))
     timing = dict(m.timing_ms)
     timing["plan"] = (time.perf_counter() - t0) * 1e3
     timing["total"] = timing.get("total", 0.0) + timing["plan"]
@@ -198,7 +225,8 @@ def _replan(prep: Prepared, start: np.ndarray) -> Prepared:
     from sanav_mj.planning import plan as make_plan
 
     t0 = time.perf_counter()
-    plan = make_plan(prep.areas, start, prep.scenario.goal, prep.scenario.robot)
+    robot = prep.scenario.robot
+    plan = make_plan(prep.areas, start, prep.scenario.goal, robot, planner_config(robot))
     timing = dict(prep.timing_ms)
     timing["plan"] = (time.perf_counter() - t0) * 1e3
     return Prepared(prep.scenario, prep.grid, prep.leaves, prep.areas, plan, timing, prep.safe_map)

@@ -106,3 +106,21 @@ def inside_union(points, rects, tol=1e-9) -> np.ndarray:
     r = np.asarray(rects)[None]
     ok = (p[..., 0] >= r[..., 0] - tol) & (p[..., 1] >= r[..., 1] - tol) & (p[..., 0] <= r[..., 2] + tol) & (p[..., 1] <= r[..., 3] + tol)
     return ok.any(axis=1)
+
+
+def plan_from_samples(areas: SafeAreas, corridor, samples, dt=0.1) -> Plan:
+    """A plan whose reference is the given samples taken every ``dt`` [s].
+
+    Args:
+        samples: (K, 5) rows ``x, y, yaw, v, w`` [m, m, rad, m/s, rad/s] (a recorded
+            reference); the plan's goal is the last position.
+        corridor: safe-area indices; each sample's area is the first of them containing it.
+    """
+    samples = np.asarray(samples, dtype=float)
+    xy = samples[:, :2]
+    rects = areas.rects
+    area = np.array(
+        [next(r for r in corridor if np.all(p >= rects[r, :2] - 1e-9) and np.all(p <= rects[r, 2:] + 1e-9)) for p in xy]
+    )
+    ref = Reference(dt=dt, states=samples[:, :3].copy(), inputs=samples[:, 3:5].copy(), area=area)
+    return Plan(True, "ok", np.asarray(corridor, dtype=int), xy[-1].copy(), xy, xy, xy, ref)

@@ -21,7 +21,7 @@ from sanav_mj.control.sa_mpc import (
 from sanav_mj.control.unicycle import rollout_np, step_np
 from sanav_mj.scene import RobotParams
 
-from mpc_cases import L_RECTS, ROBOT, inside_union, make_areas, make_plan
+from mpc_cases import L_RECTS, ROBOT, inside_union, make_areas, make_plan, plan_from_samples
 
 # ------------------------------------------------------------------ config
 
@@ -273,9 +273,58 @@ def test_narrow_passage_is_traversed_thanks_to_exit_targets(monkeypatch):
     assert ok and inside_union(path, areas.rects).all()
     # without the exit targets the far reference pins the plan to the wall above the portal
     stuck = SAMPC(ROBOT, areas, plan, MPCConfig())
-    monkeypatch.setattr(stuck, "_exit_targets", lambda xr, s, p0, yaw0: xr)
+    monkeypatch.setattr(stuck, "_exit_targets", lambda xr, ur, s, p0, yaw0: (xr, ur))
     ok, path, _ = run_closed_loop(stuck, [0.5, 0.6, 0.0], plan.goal, areas.rects, steps=150)
     assert not ok and path[-1, 0] < 2.0
+
+
+# rectangles and reference samples (x, y, yaw, v, w every 0.1 s) of generated map clutter_0085
+# where the robot, coming up a column of slivers, must turn right into a 10 cm high portal
+# (R5 -> R6); at 1.144 m/s, the planner's top speed under the MPC's bounds
+PORTAL_RECTS = [
+    [0.8, -1.4, 1.6, -1.0], [0.8, -1.0, 1.2, -0.6], [1.0, -0.6, 1.1, -0.45], [1.0, -0.45, 1.05, 0.0],
+    [1.0, 0.0, 1.1, 0.2], [0.8, 0.2, 1.2, 0.6], [1.2, 0.3, 1.4, 0.4], [1.4, 0.35, 1.8, 0.4],
+    [1.8, 0.3, 2.0, 0.4], [2.0, 0.2, 2.4, 0.6], [2.4, 0.2, 4.0, 1.0],
+]  # fmt: skip
+PORTAL_SAMPLES = [
+    [1.0, -1.367, 1.5342, 0.0, -0.0], [1.0002, -1.361, 1.5342, 0.12, -0.0], [1.0009, -1.343, 1.5342, 0.24, -0.0],
+    [1.002, -1.313, 1.5342, 0.36, 0.0001], [1.0035, -1.2711, 1.5342, 0.48, 0.0003], [1.0055, -1.2171, 1.5343, 0.6, 0.0007],
+    [1.0079, -1.1511, 1.5344, 0.72, 0.0033], [1.0107, -1.0732, 1.5353, 0.84, 0.0149], [1.0138, -0.9832, 1.5376, 0.96, 0.0319],
+    [1.017, -0.8813, 1.5425, 1.08, 0.0707], [1.0197, -0.7687, 1.552, 1.144, 0.1171], [1.0211, -0.6543, 1.565, 1.144, 0.1424],
+    [1.0209, -0.5399, 1.5799, 1.144, 0.1379], [1.0192, -0.4255, 1.5898, 1.144, 0.0606], [1.0169, -0.3111, 1.5896, 1.144, -0.111],
+    [1.0159, -0.1976, 1.5652, 1.0988, -0.367], [1.0187, -0.0938, 1.5138, 0.9788, -0.6867], [1.0275, -0.0024, 1.4285, 0.8588, -1.0148],
+    [1.043, 0.076, 1.3139, 0.7394, -1.2524], [1.0647, 0.1412, 1.1791, 0.6423, -1.4478], [1.092, 0.1955, 1.024, 0.5832, -1.6534],
+    [1.1261, 0.2422, 0.8533, 0.5794, -1.7258], [1.1679, 0.2825, 0.6816, 0.5821, -1.7023], [1.2164, 0.3154, 0.5138, 0.5944, -1.6469],
+    [1.272, 0.3411, 0.3593, 0.6456, -1.4325], [1.3386, 0.3609, 0.2269, 0.7526, -1.2159], [1.4187, 0.3745, 0.1175, 0.8726, -0.963],
+    [1.5117, 0.3813, 0.0361, 0.9926, -0.658], [1.617, 0.3822, -0.0126, 1.1126, -0.3194], [1.7309, 0.3794, -0.0305, 1.144, -0.0341],
+    [1.8452, 0.3762, -0.0202, 1.144, 0.2078], [1.9596, 0.3754, 0.0074, 1.144, 0.3453], [2.074, 0.3784, 0.0464, 1.144, 0.4019],
+    [2.1881, 0.386, 0.0861, 1.144, 0.391], [2.3019, 0.398, 0.124, 1.144, 0.3651], [2.4151, 0.4142, 0.159, 1.144, 0.3313],
+    [2.5278, 0.434, 0.1891, 1.144, 0.2702], [2.6399, 0.457, 0.2131, 1.144, 0.2102], [2.7514, 0.4822, 0.2313, 1.144, 0.1536],
+    [2.8626, 0.5092, 0.2441, 1.144, 0.1073], [2.9735, 0.5374, 0.2529, 1.144, 0.0676], [3.0842, 0.5663, 0.2582, 1.144, 0.041],
+    [3.1947, 0.5957, 0.2611, 1.144, 0.0176], [3.3052, 0.6253, 0.262, 1.144, 0.0013], [3.4157, 0.6549, 0.2613, 1.144, -0.0152],
+    [3.5263, 0.6844, 0.259, 1.144, -0.0321],
+]  # fmt: skip
+
+
+def test_thin_portal_at_right_angles_does_not_stall(monkeypatch):
+    # The exit target of the stages whose reference lies beyond R5 is a point of the thin
+    # R5 ∩ bridge(R5, R6). With the reference's speed kept as those stages' input target the
+    # optimal plan drove through that point and out of the 10 cm strip, so the guess never
+    # fitted the bridge, the assignment never advanced and the plan kept postponing its
+    # motion: the robot stopped for good below the portal. A standing target (zero input
+    # reference) lets it settle in the strip, advance and turn through.
+    areas = make_areas(PORTAL_RECTS)
+    plan = plan_from_samples(areas, list(range(len(PORTAL_RECTS))), PORTAL_SAMPLES)
+    robot = RobotParams(**{**ROBOT.__dict__, "w_max": 3.0, "alpha_max": 4.0})  # the MuJoCo robot's rates
+    start = [1.0, -1.367, 0.86]
+    ctl = SAMPC(robot, areas, plan, MPCConfig())
+    ok, path, _ = run_closed_loop(ctl, start, plan.goal, areas.rects, steps=150)
+    assert ok and inside_union(path, areas.rects).all()
+    stall = SAMPC(robot, areas, plan, MPCConfig())
+    exit_targets = stall._exit_targets
+    monkeypatch.setattr(stall, "_exit_targets", lambda xr, ur, s, p0, yaw0: (exit_targets(xr, ur, s, p0, yaw0)[0], ur))
+    ok, path, _ = run_closed_loop(stall, start, plan.goal, areas.rects, steps=150)
+    assert not ok and path[-1, 0] < 1.2  # stopped for good in R5, below the portal
 
 
 def test_closed_loop_with_measurement_noise_stays_inside(u_case):
