@@ -183,7 +183,7 @@ def replay(backend, ocp, problems, rate_step) -> dict:
             z0, y0, yz0 = np.zeros(2 * n), None, None
         else:
             z0 = shift_inputs(prev.z.reshape(n, 2), 1, n, rate_step, prev.z[:2]).ravel()
-            y0 = shift_multipliers(ocp, prev.y)
+            y0 = shift_multipliers(ocp, prev.y, shift_rates=False)  # as SAMPC does
             yz0 = shift_bound_multipliers(prev.y_z)
         z0 = np.clip(z0, z_lb, z_ub)
         t0, c0 = time.perf_counter(), time.process_time()

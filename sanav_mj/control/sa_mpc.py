@@ -91,11 +91,20 @@ class MPCConfig:
         constraint_tol: [m] allowed constraint violation reported by the solver; a solution
             violating a constraint by more than 10x this is rejected.
         max_iter: solver iteration limit (PANOC: per ALM pass).
-        max_outer_iter: ALM outer iteration limit (PANOC).
+        max_outer_iter: ALM outer iteration limit (PANOC). Warm-started problems converge
+            in about 4; 8 stops the few that do not (tightrope passages 2-3 cm wide after the
+            margin, where more outer iterations only inflated the penalty: 2000 iterations,
+            30 ms) with the nearly feasible last iterate, accepted as ``"inexact"`` when it
+            satisfies the constraints, else the fallback.
         solve_budget_ms: [ms] optional wall-clock limit of one solve; the solver stops and
             its last iterate is used if it is feasible, else the fallback.
         accept_inexact: use a non-converged iterate when it is finite and satisfies every
             constraint (status ``"inexact"``); when False such a step takes the fallback.
+        turn_in_place: [rad] when the heading error to the reference at the first step of an
+            episode exceeds this, the robot first turns on the spot (status ``"turn"``, see
+            "Opening turn" in :class:`SAMPC`); None: the MPC handles every start.
+        turn_exit: [rad] the opening turn hands over to the MPC once the heading error is
+            at most this (must be below ``turn_in_place``).
         reference_window: samples ahead of the last progress index searched for the
             reference sample nearest to the robot; None -> horizon.
         cache_dir: folder of compiled solver code; None -> ``$SANAV_MJ_CACHE`` or
@@ -120,9 +129,11 @@ class MPCConfig:
     tol: float = 1e-3
     constraint_tol: float = 1e-4
     max_iter: int = 300
-    max_outer_iter: int = 20
+    max_outer_iter: int = 8
     solve_budget_ms: float | None = None
     accept_inexact: bool = True
+    turn_in_place: float | None = 1.0
+    turn_exit: float = 0.3
     reference_window: int | None = None
     cache_dir: str | None = None
 
@@ -149,6 +160,13 @@ class MPCConfig:
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
                 raise ValueError(f"MPCConfig.{name} must be an integer >= 1, got {v!r}")
+        _positive("turn_in_place", self.turn_in_place, allow_none=True)
+        if not (isinstance(self.turn_exit, (int, float)) and 0 <= self.turn_exit < math.pi):
+            raise ValueError(f"MPCConfig.turn_exit must be in [0, pi) rad, got {self.turn_exit!r}")
+        if self.turn_in_place is not None and self.turn_exit >= self.turn_in_place:
+            raise ValueError(
+                f"MPCConfig.turn_exit must be below turn_in_place ({self.turn_in_place!r} rad), got {self.turn_exit!r}"
+            )
         if self.reference_window is not None and not (
             isinstance(self.reference_window, int) and self.reference_window >= 1
         ):
@@ -595,6 +613,21 @@ class SAMPC:
     following it nominally stays in its boxes); once it is exhausted the robot brakes at the
     rate limits (``"fallback_stop"``). Commands are always finite.
 
+    **Opening turn.** With a random initial yaw the robot often starts facing away from the
+    reference. Posed to the MPC, that start is the hardest problem of the episode: the
+    optimal plan turns on the spot at the yaw-acceleration bound with most rate constraints
+    active, and PANOC needed 1000-1900 iterations (20-57 ms) for it. As is standard practice,
+    the controller instead starts the episode with a dedicated turn on the spot when the
+    heading error to the reference (at the robot's progress index) exceeds
+    ``turn_in_place``, until it is at most ``turn_exit``; then the MPC takes over, warm
+    started with the rest of the turn. Each turn step plans ``v = 0`` and the time-optimal
+    rest-to-rest yaw-rate profile within the input and rate bounds (:meth:`_turn_plan`), so
+    every constraint of the MPC problem holds for that plan: the position stays where it
+    is, hence inside the stage box of the measured position, the plan ends at rest
+    (terminal stop), and it is a feasible shifted plan for the MPC's first problem. The
+    commands have status ``"turn"`` and the same prediction, rectangle ids and margins as
+    an MPC step.
+
     Attributes:
         name: ``"sa-mpc"``.
         dt: [s] control period.
@@ -687,6 +720,7 @@ class SAMPC:
         self._active: _Plan | None = None
         self._s_prev: np.ndarray | None = None
         self._step_index = 0
+        self._turning = self.config.turn_in_place is not None
         self.stats = SAMPCStats()
         self.last_failure_reason: str | None = None
         self.last: StepInfo | None = None
@@ -816,6 +850,62 @@ class SAMPC:
         )
         return v
 
+    def _turn_plan(self, err: float) -> np.ndarray:
+        """(N, 2) inputs turning on the spot by ``err`` [rad] as fast as the bounds allow.
+
+        ``v = 0`` throughout; the yaw rate starts from the previous one and, stage by stage,
+        takes the largest value within the rate and input bounds from which braking at the
+        rate bound does not turn past ``err`` (time-optimal rest-to-rest profile of the
+        discrete double integrator); it brakes at the rate bound when even that overshoots.
+        """
+        n = self.N
+        dt = self.dt
+        a = float(self._rate_step[1])  # [rad/s] largest yaw-rate change per step
+        w_max = self.limits.w_max
+        sgn = 1.0 if err >= 0 else -1.0
+        rem = abs(err)
+        w = sgn * float(self._u_prev[1])  # yaw rate towards the target
+        out = np.zeros((n, 2))
+        for k in range(n):
+            # Largest w' >= 0 whose braking run turns at most rem: in units of dt the run
+            # turns S(w') = (m + 1) w' - a m (m + 1) / 2 with m = floor(w' / a), continuous
+            # and increasing; solve piece by piece.
+            budget = rem / dt
+            best = 0.0
+            m = 0
+            while budget > 0:
+                cand = (budget + a * m * (m + 1) / 2) / (m + 1)
+                if cand < (m + 1) * a:
+                    best = cand
+                    break
+                m += 1
+            w = min(max(best, w - a, -w_max), w + a, w_max)
+            out[k, 1] = sgn * w
+            rem -= w * dt
+        return out
+
+    def _turn_step(self, x0: np.ndarray, t0: float, err: float) -> Command:
+        """One step of the opening turn on the spot (see "Opening turn" in the class doc)."""
+        u = self._turn_plan(err)
+        xs = rollout_np(x0, u, self.dt)
+        s = assign_stages(self.chain, xs[:, :2], self._first_candidates(), tol=self._check_tol)
+        boxes = self._relaxed_boxes(stage_boxes(self.chain, s), x0[:2])
+        self._active = _Plan(u, 1)
+        self._s_prev = s
+        self._u_prev = u[0].copy()
+        self._count("turn")
+        margins = np.concatenate(([box_slack(x0[None, :2], boxes[:1])[0]], box_slack(xs[1:, :2], boxes[1:])))
+        return Command(
+            v=0.0,
+            w=float(u[0, 1]),
+            solve_ms=(time.perf_counter() - t0) * 1e3,
+            status="turn",
+            ok=True,
+            predicted=xs,
+            rect_ids=self._rect_ids(s, xs[:, :2]),
+            margins=margins,
+        )
+
     # ---------------------------------------------------------------- the step
 
     def step(self, obs: Observation) -> Command:
@@ -829,6 +919,12 @@ class SAMPC:
             return self._fallback(x0, t0, None, None, "bad_measurement")
 
         xr, ur = self.horizon_reference(x0)
+        if self._turning:
+            err = float(xr[0, 2] - x0[2])  # wrapped: the reference yaw is shifted to the measured branch
+            limit = self.config.turn_in_place if k_step == 0 else self.config.turn_exit
+            if abs(err) > limit:
+                return self._turn_step(x0, t0, err)
+            self._turning = False
         u_guess = self._guess_inputs()
         guess = rollout_np(x0, u_guess, self.dt)
         s = assign_stages(self.chain, guess[:, :2], self._first_candidates(), tol=self._check_tol)
@@ -855,7 +951,7 @@ class SAMPC:
         )
         y0 = y_z0 = None
         if self._active is not None and self._active.next == 1 and self._active.y is not None:
-            y0 = shift_multipliers(self.ocp, self._active.y)
+            y0 = shift_multipliers(self.ocp, self._active.y, shift_rates=False)
             y_z0 = shift_bound_multipliers(self._active.y_z)
 
         if self.failure_injector is not None and self.failure_injector(k_step):

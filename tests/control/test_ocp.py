@@ -156,5 +156,7 @@ def test_shift_multipliers_moves_one_stage():
     ocp = build_tracking_ocp(3, 0.1)
     y = np.arange(ocp.n_g, dtype=float)  # positions 0..5, rates 6..9
     np.testing.assert_allclose(shift_multipliers(ocp, y), [2, 3, 4, 5, 4, 5, 8, 9, 0, 0])
+    # rate multipliers kept in place (the terminal braking stays at the end of the horizon)
+    np.testing.assert_allclose(shift_multipliers(ocp, y, shift_rates=False), [2, 3, 4, 5, 4, 5, 6, 7, 8, 9])
     assert shift_bound_multipliers(None) is None
     np.testing.assert_allclose(shift_bound_multipliers(np.arange(6.0)), [2, 3, 4, 5, 0, 0])

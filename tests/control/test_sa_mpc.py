@@ -38,6 +38,8 @@ from mpc_cases import L_RECTS, ROBOT, inside_union, make_areas, make_plan, plan_
         (dict(box_margin=-0.1), "box_margin"),
         (dict(solver="cvx"), "solver"),
         (dict(solve_budget_ms=0.0), "solve_budget_ms"),
+        (dict(turn_in_place=-1.0), "turn_in_place"),
+        (dict(turn_in_place=0.5, turn_exit=0.5), "turn_exit"),
     ],
 )
 def test_config_rejects_bad_values_naming_the_field(kw, match):
@@ -435,3 +437,62 @@ def test_reference_yaw_is_shifted_to_the_measured_branch(l_controller):
     xr, ur = ctl.horizon_reference(np.array([0.5, 0.5, 4 * np.pi + 0.1]))
     assert abs(xr[0, 2] - (4 * np.pi + 0.1)) < np.pi
     assert ur.shape == (ctl.N, 2) and xr.shape == (ctl.N + 1, 3)
+
+
+# ------------------------------------------------------------------ opening turn on the spot
+
+MJ_RATES = RobotParams(**{**ROBOT.__dict__, "w_max": 3.0, "alpha_max": 4.0})  # rate step 0.4 rad/s
+
+
+def test_turn_plan_is_the_time_optimal_rest_to_rest_profile(l_case):
+    areas, plan = l_case
+    ctl = SAMPC(MJ_RATES, areas, plan, MPCConfig())
+    u = ctl._turn_plan(1.0)
+    np.testing.assert_allclose(u[:, 0], 0.0)
+    np.testing.assert_allclose(u[:10, 1], [0.4, 0.8, 1.2, 1.6, 2.0, 1.6, 1.2, 0.8, 0.4, 0.0], atol=1e-12)
+    np.testing.assert_allclose(u[10:], 0.0)
+    long = ctl._turn_plan(-3.0)  # reaches the yaw-rate bound, then brakes to rest
+    assert np.all(long[:, 1] <= 1e-12) and np.min(long[:, 1]) == pytest.approx(-3.0)
+    for w in (u[:, 1], long[:, 1]):
+        assert np.sum(w) * 0.1 == pytest.approx(np.sign(w.sum()) * abs(w.sum()) * 0.1)
+        assert np.all(np.abs(np.diff(np.concatenate(([0.0], w)))) <= 0.4 + 1e-12) and w[-1] == 0.0
+    assert np.sum(long[:, 1]) * 0.1 == pytest.approx(-3.0)
+
+
+def test_opening_turn_on_the_spot_then_the_mpc(l_case):
+    areas, plan = l_case  # the reference starts along +x
+    ctl = SAMPC(MJ_RATES, areas, plan, MPCConfig())
+    x = np.array([0.5, 0.5, 3.0])
+    ctl.reset(x)
+    cmds, poses = [], []
+    for k in range(200):
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x.copy(), velocity=np.zeros(2)))
+        cmds.append(cmd)
+        x = step_np(x, [cmd.v, cmd.w], ctl.dt)
+        poses.append(x.copy())
+        if np.hypot(*(x[:2] - plan.goal)) < 0.05 and abs(cmd.v) < 0.05:
+            break
+    status = [c.status for c in cmds]
+    n_turn = status.index("ok")
+    assert n_turn >= 5 and set(status[:n_turn]) == {"turn"} and "turn" not in status[n_turn:]
+    # on the spot: no motion, every plan inside its boxes and at rest at its end
+    assert all(c.v == 0.0 and np.all(c.margins >= -1e-9) for c in cmds[:n_turn])
+    np.testing.assert_allclose(np.array(poses[:n_turn])[:, :2], 0.5)
+    assert abs(poses[n_turn - 1][2]) <= ctl.config.turn_exit + 1e-9  # handed over when aligned
+    # input and rate bounds hold across the hand-over and after
+    u = np.array([[c.v, c.w] for c in cmds])
+    du = np.abs(np.diff(np.vstack(([0.0, 0.0], u)), axis=0))
+    assert np.all(du <= ctl._rate_step + 1e-6)
+    assert np.all(np.abs(u[:, 1]) <= ctl.limits.w_max + 1e-9)
+    assert ctl.stats.failures == 0 and np.hypot(*(x[:2] - plan.goal)) < 0.05
+
+
+def test_opening_turn_can_be_disabled(l_case):
+    areas, plan = l_case
+    ctl = SAMPC(MJ_RATES, areas, plan, MPCConfig(turn_in_place=None))
+    ctl.reset(np.array([0.5, 0.5, 3.0]))
+    cmd = ctl.step(Observation(t=0.0, pose=np.array([0.5, 0.5, 3.0]), velocity=np.zeros(2)))
+    assert cmd.status in ("ok", "inexact")
+    small = SAMPC(MJ_RATES, areas, plan, MPCConfig())  # a small heading error starts with the MPC
+    small.reset(np.array([0.5, 0.5, 0.8]))
+    assert small.step(Observation(t=0.0, pose=np.array([0.5, 0.5, 0.8]), velocity=np.zeros(2))).status == "ok"
