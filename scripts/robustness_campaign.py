@@ -77,6 +77,9 @@ CAMPAIGN: tuple[Sweep, ...] = (
     Sweep("actuator_far", "beyond", ("actuator_gain=0.1,0.3,1.0", "torque_limit=0.1,0.3,1.0"),
           what="wheel servo gain and torque limit down to 10 %"),
     Sweep("jitter_far", "beyond", ("jitter=0.1,0.3,0.5",), what="control period jitter up to +-50 %"),
+    Sweep("combined_far", "beyond", ("wheel_radius=0.8,1.2", "track=0.8,1.2"),
+          fixed=("friction=0.2", "delay=2", "pos_noise=0.05", "yaw_noise=0.087"),
+          what="+-20 % geometry corners with friction 0.2, two steps of delay and 5 cm / 5 deg noise at once"),
     Sweep("solve_budget", "beyond", ("solve_budget_ms=0.5,1,2,3,5,10",),
           what="solver wall-time budget 0.5-10 ms (wall-clock: depends on the machine and its load)"),
 )
