@@ -17,7 +17,11 @@
 4. Construction: a fresh process builds the controller with an empty cache (code
    generation + compilation) and a second process with the filled cache.
 
-Usage: ``python scripts/bench_solvers.py [--solvers panoc pantr ipopt] [--horizon 20]``.
+5. With ``--mujoco SEEDS``: each back-end drives SA-MPC in MuJoCo on the five built-in
+   scenarios x SEEDS random initial yaws (the harness of ``sanav-mj run``); outcomes and the
+   wall (``solve_ms``) and CPU time of every controller step.
+
+Usage: ``python scripts/bench_solvers.py [--solvers panoc pantr ipopt] [--horizon 20] [--mujoco 10]``.
 """
 
 from __future__ import annotations
@@ -216,6 +220,58 @@ def replay(backend, ocp, problems, rate_step) -> dict:
     }
 
 
+def mujoco_loops(solver: str, seeds: int) -> dict:
+    """The five built-in scenarios x ``seeds`` random initial yaws in MuJoCo (``sanav-mj run``'s
+    harness) with SA-MPC on ``solver``: outcomes and the per-step wall time (``solve_ms``) and
+    CPU time of ``SAMPC.step``."""
+    from sanav_mj.eval.episode import initial_pose, prepare, run_scenario
+    from sanav_mj.scene import load_scenario
+
+    runs, wall, cpu = [], [], []
+    statuses: dict[str, int] = {}
+    for name in BUILTIN:
+        scenario = load_scenario(name)
+        for seed in range(seeds):
+            start = initial_pose(scenario, seed, None)
+            prep = prepare(scenario, start=start)
+            ctl = SAMPC(scenario.robot, prep.areas, prep.plan, MPCConfig(solver=solver))
+            step = ctl.step
+
+            def timed(obs, step=step):
+                c0 = time.process_time()
+                cmd = step(obs)
+                cpu.append((time.process_time() - c0) * 1e3)
+                return cmd
+
+            ctl.step = timed
+            ep = run_scenario(prep, "sa-mpc", seed=seed, controller_obj=ctl).episode
+            wall.extend(ep.trace.solve_ms)
+            for st in ep.trace.status:
+                statuses[st] = statuses.get(st, 0) + 1
+            runs.append(
+                {"scenario": name, "seed": seed, "success": bool(ep.success), "reason": ep.reason,
+                 "collisions": int(ep.collisions), "fallback_steps": int(ep.solver_failures), "steps": int(ep.steps)}
+            )  # fmt: skip
+    wall, cpu = np.array(wall), np.array(cpu)
+    return {
+        "runs": runs,
+        "successes": sum(r["success"] for r in runs),
+        "collisions": sum(r["collisions"] for r in runs),
+        "fallback_steps": sum(r["fallback_steps"] for r in runs),
+        "statuses": statuses,
+        "steps": int(wall.size),
+        "wall_ms_mean": float(wall.mean()),
+        "wall_ms_p50": float(np.median(wall)),
+        "wall_ms_p99": float(np.percentile(wall, 99)),
+        "wall_ms_max": float(wall.max()),
+        "wall_over_5ms": float(np.mean(wall > 5.0)),
+        "cpu_ms_mean": float(cpu.mean()),
+        "cpu_ms_p99": float(np.percentile(cpu, 99)),
+        "cpu_ms_max": float(cpu.max()),
+        "load_avg_1min": os.getloadavg()[0],
+    }
+
+
 _BUILD_SNIPPET = """
 import json, sys, time
 t0 = time.perf_counter()
@@ -248,6 +304,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--horizon", type=int, default=20)
     ap.add_argument("--no-build", action="store_true", help="skip the construction-time measurement")
     ap.add_argument("--no-scenarios", action="store_true", help="only the synthetic L and U corridors")
+    ap.add_argument("--mujoco", type=int, default=0, metavar="SEEDS",
+                    help="also run the five built-in scenarios x SEEDS random yaws in MuJoCo per back-end")
     ap.add_argument("--json", type=Path, help="write all results to this file")
     args = ap.parse_args(argv)
 
@@ -266,7 +324,10 @@ def main(argv: list[str] | None = None) -> int:
     rate_step = ctl.limits.rate() * ctl.dt
     print(f"recorded {len(problems)} problems in all (N = {args.horizon})")
 
-    results: dict = {"horizon": args.horizon, "problems": len(problems), "replay": {}, "closed_loop": {}, "build": {}}
+    results: dict = {
+        "horizon": args.horizon, "problems": len(problems), "replay": {}, "closed_loop": {}, "build": {}, "mujoco": {},
+        "load_avg_start": os.getloadavg(),
+    }  # fmt: skip
     for solver in args.solvers:
         backend = make_backend(solver, ocp, base.replace(solver=solver).solver_settings())
         replay(backend, ocp, problems[:20], rate_step)  # warm-up (page-in, first calls)
@@ -278,6 +339,9 @@ def main(argv: list[str] | None = None) -> int:
         results["closed_loop"][solver] = loops
         if not args.no_build and solver in ("panoc", "pantr", "ipopt"):
             results["build"][solver] = build_times(solver, args.horizon)
+        if args.mujoco:
+            results["mujoco"][solver] = mujoco_loops(solver, args.mujoco)
+    results["load_avg_end"] = os.getloadavg()
 
     ref = results["replay"].get("ipopt")
     print("\nReplay of the recorded sequence (per solve, Python call included)")
@@ -307,6 +371,16 @@ def main(argv: list[str] | None = None) -> int:
             f, s = b["first_process"], b["second_process"]
             print(f"{solver:8s} first {f['build_s']:.2f} s (compiled={f['compiled']}), second {s['build_s']:.3f} s "
                   f"(compiled={s['compiled']}); imports {s['imports_s']:.2f} s")  # fmt: skip
+    if results["mujoco"]:
+        print(f"\nMuJoCo: five built-in scenarios x {args.mujoco} random initial yaws (SAMPC.step per control step)")
+        for solver, m in results["mujoco"].items():
+            ratio = results["mujoco"]["ipopt"]["wall_ms_mean"] / m["wall_ms_mean"] if "ipopt" in results["mujoco"] else float("nan")
+            print(f"{solver:8s} success {m['successes']}/{len(m['runs'])} collisions {m['collisions']} fallback steps "
+                  f"{m['fallback_steps']} | wall mean {m['wall_ms_mean']:.2f} p50 {m['wall_ms_p50']:.2f} p99 "
+                  f"{m['wall_ms_p99']:.2f} max {m['wall_ms_max']:.1f} ms ({m['wall_over_5ms'] * 100:.1f} % > 5 ms) | cpu mean "
+                  f"{m['cpu_ms_mean']:.2f} p99 {m['cpu_ms_p99']:.2f} max {m['cpu_ms_max']:.1f} ms | IPOPT/this {ratio:.1f}x "
+                  f"| {m['steps']} steps, load {m['load_avg_1min']:.1f}")  # fmt: skip
+    print(f"\nload average (1, 5, 15 min): start {results['load_avg_start']}, end {results['load_avg_end']}")
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))
     return 0
