@@ -364,10 +364,14 @@ class CorridorChain:
 
 def _outside(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     """Euclidean distance (P, L) [m] from points (P, 2) to boxes (L, 4) (0 inside)."""
-    lo = boxes[None, :, :2] - points[:, None, :]
-    hi = points[:, None, :] - boxes[None, :, 2:]
-    d = np.maximum(np.maximum(lo, hi), 0.0)
-    return np.sqrt(np.sum(d * d, axis=-1))
+    return np.sqrt(_outside_sq(points, boxes))
+
+
+def _outside_sq(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Squared Euclidean distance (P, L) [m^2] from points (P, 2) to boxes (L, 4) (0 inside)."""
+    dx = np.maximum(np.maximum(boxes[None, :, 0] - points[:, :1], points[:, :1] - boxes[None, :, 2]), 0.0)
+    dy = np.maximum(np.maximum(boxes[None, :, 1] - points[:, 1:], points[:, 1:] - boxes[None, :, 3]), 0.0)
+    return dx * dx + dy * dy
 
 
 def assign_stages(
@@ -400,9 +404,14 @@ def assign_stages(
     """
     n1 = guess.shape[0]
     L = len(chain)
+    d2 = _outside_sq(guess, np.concatenate((chain.stay, chain.advance)))
+    d2[d2 < tol * tol] = 0.0
+    if L <= 62:
+        s = _assign_feasible(d2, L, first_candidates, reanchor_distance)
+        if s is not None:
+            return s
+    v = np.sqrt(d2)
     big = 1e7  # [1/m]: violation weight against the progress count (<= (N+1) L)
-    v = _outside(guess, np.concatenate((chain.stay, chain.advance)))
-    v[v < tol] = 0.0
     idx = np.arange(L, dtype=float)
     c_stay = (v[:, :L] * big - idx).tolist()
     c_adv = (v[:, L:] * big - idx).tolist()
@@ -437,6 +446,50 @@ def assign_stages(
         if back[k][j]:
             j -= 1
     s[0] = j
+    return s
+
+
+def _assign_feasible(v: np.ndarray, L: int, first_candidates, reanchor_distance: float) -> np.ndarray | None:
+    """The assignment of :func:`assign_stages` when one with zero violation exists, else None.
+
+    Among zero-violation assignments the one advancing as early as possible is pointwise
+    the largest (if another one advanced at a stage where it did not, it could have too),
+    hence the unique maximiser of ``sum_k s(k)`` that the dynamic programme returns. With
+    the members as bits of an integer, stage k's feasible members ``R_k`` (a zero-violation
+    completion to stage N exists) follow backwards in a few integer operations per stage,
+    then the assignment forwards: 5-10x faster than the dynamic programme in Python.
+
+    Args:
+        v: (N+1, 2L) [m^2] squared distances of the guessed positions outside each
+            member's stay box (first L columns) and advance box (last L), zero below the
+            tolerance.
+        L: number of members (<= 62).
+        first_candidates, reanchor_distance: as in :func:`assign_stages`.
+    """
+    weights = np.left_shift(np.int64(1), np.arange(L, dtype=np.int64))
+    zero = v == 0.0
+    stay = (zero[:, :L] @ weights).tolist()
+    adv = (zero[:, L:] @ weights).tolist()
+    n1 = len(stay)
+    reach = [0] * n1
+    r = stay[-1]
+    reach[-1] = r
+    for k in range(n1 - 2, -1, -1):
+        # member j at stage k continues by staying on j (stay box of k+1) or advancing to j+1
+        r = (stay[k + 1] & r) | ((adv[k + 1] & r) >> 1)
+        reach[k] = r
+    first = stay[0] & reach[0]
+    if first_candidates is not None and np.min(v[0, :L][first_candidates]) <= reanchor_distance**2:
+        first &= int(first_candidates.astype(np.int64) @ weights)
+    if first == 0:
+        return None
+    s = np.empty(n1, dtype=int)
+    j = first.bit_length() - 1
+    s[0] = j
+    for k in range(1, n1):
+        if (adv[k] >> (j + 1)) & (reach[k] >> (j + 1)) & 1:
+            j += 1
+        s[k] = j
     return s
 
 
