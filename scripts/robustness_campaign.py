@@ -64,6 +64,10 @@ CAMPAIGN: tuple[Sweep, ...] = (
     Sweep("combined", "envelope", ("wheel_radius=0.9,1.1", "track=0.9,1.1"),
           fixed=("friction=0.3", "delay=1", "pos_noise=0.02", "yaw_noise=0.035"),
           what="the four geometry corners with low friction, one step of delay and full noise at once"),
+    Sweep("corner_traction", "envelope", ("friction=0.3,1.0", "delay=0,1"),
+          fixed=("wheel_radius=1.1", "track=0.9"),
+          what="the worst geometry corner (10 % fast, 22 % over-turning) with low friction and delay, "
+               "to find which combination breaks the all-at-once corner"),
     # ---- beyond the envelope: how it degrades
     Sweep("wheel_radius_far", "beyond", ("wheel_radius=0.6,0.7,0.8,1.2,1.3,1.4",),
           what="wheel radius -40 % to +40 %"),
