@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import csv
 import datetime
+import json
 import math
 import platform
 import subprocess
@@ -89,6 +90,23 @@ CAMPAIGN: tuple[Sweep, ...] = (
 )
 
 
+#: the envelope table by key: (label, sweep, {key: value} the runs are restricted to)
+ENVELOPE_ROWS: tuple[tuple[str, str, dict[str, float]], ...] = (
+    ("wheel_radius 0.9-1.1 (track nominal)", "geometry", {"track": 1.0}),
+    ("track 0.9-1.1 (wheel radius nominal)", "geometry", {"wheel_radius": 1.0}),
+    ("wheel_radius 0.9-1.1 x track 0.9-1.1", "geometry", {}),
+    ("friction 0.3-1.0 (no delay)", "traction_delay", {"delay": 0}),
+    ("delay 1 (friction 1.0)", "traction_delay", {"friction": 1.0, "delay": 1}),
+    ("friction 0.3-1.0 x delay 0-1", "traction_delay", {}),
+    ("pos_noise 0-2 cm (no yaw noise)", "pose_noise", {"yaw_noise": 0.0}),
+    ("yaw_noise 0-2 deg (no position noise)", "pose_noise", {"pos_noise": 0.0}),
+    ("pos_noise 0-2 cm x yaw_noise 0-2 deg", "pose_noise", {}),
+    ("wheel 1.1, track 0.9, friction 0.3 (no delay)", "corner_traction", {"friction": 0.3, "delay": 0}),
+    ("wheel 1.1, track 0.9, delay 1 (friction 1.0)", "corner_traction", {"friction": 1.0, "delay": 1}),
+    ("all four geometry corners + friction 0.3 + delay 1 + 2 cm / 2 deg", "combined", {}),
+)
+
+
 def run_campaign(out: Path, sweeps: list[Sweep], seeds_envelope: int, seeds_beyond: int, workers: int,
                  time_limit_s: float, resume: bool) -> dict[str, float]:
     """Run ``sweeps`` into ``out/<name>/``; returns the wall time [s] of each sweep that ran."""
@@ -107,7 +125,10 @@ def run_campaign(out: Path, sweeps: list[Sweep], seeds_envelope: int, seeds_beyo
         run_robustness(list(SCENARIOS), parse_sweep(list(sw.sweep)), seeds, "sa-mpc", workers, folder,
                        time_limit_s=time_limit_s, fixed=parse_mismatch(list(sw.fixed)))
         walls[sw.name] = time.perf_counter() - t0
-        (folder / "wall_s.txt").write_text(f"{walls[sw.name]:.1f}\n")
+        info = {"commit": _git("rev-parse", "--short", "HEAD"), "local_changes": _dirty(), "seeds": seeds,
+                "wall_s": round(walls[sw.name], 1), "workers": workers, "time_limit_s": time_limit_s,
+                "finished": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}
+        (folder / "run_info.json").write_text(json.dumps(info, indent=1) + "\n")
     return walls
 
 
@@ -141,6 +162,17 @@ def _git(*args: str) -> str:
         return "unknown"
 
 
+def _dirty() -> list[str]:
+    """Files of sanav_mj/ that differ from the commit (the campaign measured those too)."""
+    text = _git("status", "--porcelain", "--", "sanav_mj")
+    return [] if text == "unknown" else [line[3:] for line in text.splitlines()]
+
+
+def _info(folder: Path) -> dict:
+    path = folder / "run_info.json"
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
 def _aggregate(runs: list[dict[str, str]]) -> tuple[int, float, float, float]:
     """(runs, success %, collision %, min clearance [m]) of some rows of robustness.csv."""
     n = len(runs)
@@ -154,18 +186,24 @@ def write_report(out: Path, sweeps: list[Sweep], walls: dict[str, float], args_l
     """Write ``out/summary.md`` from the CSVs of ``sweeps`` found under ``out``; returns its path."""
     import mujoco
 
+    present = [sw for sw in sweeps if (out / sw.name / "robustness.csv").exists()]
+    commits: dict[str, list[str]] = {}
+    for sw in present:
+        info = _info(out / sw.name)
+        code = f"`{info['commit']}`" if info else "not recorded"
+        if info.get("local_changes"):
+            code += f" with local changes in {', '.join(info['local_changes'])}"
+        commits.setdefault(code, []).append(sw.name)
     lines = ["# SA-MPC robustness campaign", ""]
-    dirty = _git("status", "--porcelain", "--", "sanav_mj")
+    lines += [f"- code measured: commit {code}" + ("" if len(commits) == 1 else f" ({', '.join(names)})")
+              for code, names in commits.items()]
     lines += [
-        f"- code: commit `{_git('rev-parse', '--short', 'HEAD')}`"
-        + (f" with local changes in: {', '.join(l[3:] for l in dirty.splitlines())}" if dirty else " (clean sanav_mj/)"),
-        f"- date: {datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}; "
+        f"- report written: {datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}; "
         f"python {platform.python_version()}, mujoco {mujoco.__version__}",
         f"- command: `{args_line}`",
-        f"- scenarios: {' '.join(SCENARIOS)}; seeds 0..n-1 (seed = random initial yaw, noise, jitter)",
+        f"- scenarios: {' '.join(SCENARIOS)}; seeds 0..n-1 per scenario (seed = random initial yaw, noise, jitter)",
         "",
     ]
-    present = [sw for sw in sweeps if (out / sw.name / "robustness.csv").exists()]
     total = 0
     lines += ["## Envelope verdict", "",
               f"Every cell of an envelope sweep must have 0 collisions and >= {MIN_SUCCESS_PCT:g} % success.", "",
@@ -183,18 +221,31 @@ def write_report(out: Path, sweeps: list[Sweep], walls: dict[str, float], args_l
             ("no collision" if coll == 0 else "**collisions**")
         lines.append(f"| {sw.name} | {sw.group} | {' '.join(sw.sweep)} | {' '.join(sw.fixed) or '-'} | {len(cells)} | "
                      f"{n} | {succ:.1f} | {worst:.1f} | {coll:.1f} | {_clear(str(clear))} | {verdict} |")
-    lines += ["", f"{total} runs in all" + (f"; this invocation ran for {sum(walls.values()) / 60:.1f} min"
-                                             if walls else "") + ".", ""]
+    rows = [(label, name, where) for label, name, where in ENVELOPE_ROWS
+            if (out / name / "robustness.csv").exists()]
+    if rows:
+        lines += ["", "## Envelope by key", "",
+                  "| mismatch | sweep | runs | success % | collision % | min clearance [m] |", "|---|---|---|---|---|---|"]
+        for label, name, where in rows:
+            runs = [r for r in _read(out / name / "robustness.csv")
+                    if all(float(r[k]) == v for k, v in where.items())]
+            n, succ, coll, clear = _aggregate(runs)
+            lines.append(f"| {label} | {name} | {n} | {succ:.1f} | {coll:.1f} | {_clear(str(clear))} |")
+    wall_s = sum(float(_info(out / sw.name).get("wall_s", 0.0)) for sw in present)
+    lines += ["", f"{total} runs in all, {wall_s / 60:.1f} min wall"
+              + (f" ({sum(walls.values()) / 60:.1f} min in this invocation)" if walls else "") + ".", ""]
 
     for sw in present:
         folder = out / sw.name
         runs = _read(folder / "robustness.csv")
         cells = _read(folder / "summary.csv")
         keys = _keys(sw)
-        wall = (folder / "wall_s.txt").read_text().strip() if (folder / "wall_s.txt").exists() else "?"
+        info = _info(folder)
+        wall = info.get("wall_s", "?")
         lines += [f"## {sw.name} ({sw.group})", "", sw.what + ".", "",
                   f"`--sweep {' '.join(sw.sweep)}`" + (f", fixed `{' '.join(sw.fixed)}`" if sw.fixed else "")
-                  + f"; {len(runs)} runs, {wall} s wall. Heat maps: `{sw.name}/*.png`.", ""]
+                  + f"; {len(runs)} runs ({info.get('seeds', '?')} seeds per scenario), {wall} s wall on "
+                  f"{info.get('workers', '?')} workers. Heat maps: `{sw.name}/*.png`.", ""]
         lines += ["| " + " | ".join(keys) + " | runs | success % | collision % | min clearance [m] | reasons |",
                   "|" + "---|" * (len(keys) + 5)]
         for c in cells:
