@@ -629,6 +629,18 @@ class SAMPC:
     advanced; the plan then kept postponing its motion and the robot stalled for good
     (4 of 100 generated clutter maps, e.g. a 10 cm portal entered at right angles).
 
+    **Implied input bounds.** The rate bounds and the terminal stop imply simple bounds on
+    each input: ``|u_k - u_prev| <= (k + 1) rate_step`` (reachable from the previous input)
+    and ``|v_k| <= (N - 1 - k) a_max dt`` (able to stop by the last stage). They are passed
+    as variable bounds together with the input bounds. They remove no feasible plan (every
+    plan satisfying the rate bounds and the terminal stop satisfies them), so the problem
+    and its optimum are unchanged; but PANOC/PANTR handle variable bounds by projection,
+    exactly and at no cost, whereas the rate rows go through the augmented Lagrangian. In
+    cruise every plan brakes to its terminal stop at the rate bound over its last stages,
+    and after a standstill it accelerates at it: with the implied bounds those active rate
+    rows no longer need multipliers, which cut the MuJoCo step time by 15 % on average and
+    its 99th percentile by 16 % (docs/benchmarks.md).
+
     **Safety between samples.** ``p_k in S_k ⊂ C_{s(k)}`` and ``p_{k+1} in S_{k+1} ⊂ C_{s(k)}``,
     so the chord ``[p_k, p_{k+1}]`` lies in the convex member ``C_{s(k)}``, which lies in the
     union of safe areas. The nominal robot drives an arc, not the chord; the arc stays within
@@ -750,10 +762,15 @@ class SAMPC:
         # Constant parts of the problem data.
         self._z_lb = np.tile(self.limits.lower(), n)
         self._z_ub = np.tile(self.limits.upper(), n)
-        if config.terminal_stop:
-            self._z_lb[-2] = 0.0
-            self._z_ub[-2] = 0.0
         self._rate_step = self.limits.rate() * self.dt
+        if config.terminal_stop:
+            # v_{N-1} = 0 and the rate bound imply |v_k| <= (N-1-k) a dt: implied bounds
+            # (see "Implied input bounds" in the class doc)
+            stop = (n - 1 - np.arange(n)) * self._rate_step[0]
+            self._z_lb[0::2] = np.maximum(self._z_lb[0::2], -stop)
+            self._z_ub[0::2] = np.minimum(self._z_ub[0::2], stop)
+        # |u_k - u_prev| <= (k + 1) * rate step, implied by the rate bounds from u_prev
+        self._reach = np.outer(np.arange(1, n + 1), self._rate_step).ravel()
         self._rate_lb = np.tile(-self._rate_step, n - 1)
         self._rate_ub = np.tile(self._rate_step, n - 1)
         self._weights = tuple(np.asarray(w, float) for w in (config.q_x, config.q_u, config.q_a, config.q_n))
@@ -989,10 +1006,9 @@ class SAMPC:
         boxes_c = self._relaxed_boxes(boxes, x0[:2])
         xr, ur = self._exit_targets(xr, ur, s, x0[:2], float(x0[2]))
 
-        z_lb = self._z_lb.copy()
-        z_ub = self._z_ub.copy()
-        z_lb[:2] = np.maximum(z_lb[:2], self._u_prev - self._rate_step)
-        z_ub[:2] = np.minimum(z_ub[:2], self._u_prev + self._rate_step)
+        u_prev = np.tile(self._u_prev, n)
+        z_ub = np.minimum(self._z_ub, u_prev + self._reach)
+        z_lb = np.minimum(np.maximum(self._z_lb, u_prev - self._reach), z_ub)
         g_lb = np.concatenate((boxes_c[1:, :2].ravel(), self._rate_lb))
         g_ub = np.concatenate((boxes_c[1:, 2:].ravel(), self._rate_ub))
         p = self._p_buf.copy()

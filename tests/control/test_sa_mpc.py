@@ -525,3 +525,33 @@ def test_opening_turn_can_be_disabled(l_case):
     small = SAMPC(MJ_RATES, areas, plan, MPCConfig())  # a small heading error starts with the MPC
     small.reset(np.array([0.5, 0.5, 0.8]))
     assert small.step(Observation(t=0.0, pose=np.array([0.5, 0.5, 0.8]), velocity=np.zeros(2))).status == "ok"
+
+
+def test_implied_input_bounds_known_answer_and_never_cut_a_feasible_plan(l_case):
+    areas, plan = l_case
+    ctl = SAMPC(MJ_RATES, areas, plan, MPCConfig())  # rate step (0.15 m/s, 0.4 rad/s), N = 20
+    ctl.reset(np.array([0.5, 0.5, 0.0]))
+    ctl._turning = False
+    ctl._u_prev = np.array([1.0, 0.5])
+    ctl.step(Observation(t=0.0, pose=np.array([0.5, 0.5, 0.0]), velocity=np.zeros(2)))
+    lo, hi = ctl.last.input_lower, ctl.last.input_upper
+    lim, n = ctl.limits, ctl.N
+    for k in range(n):
+        stop = (n - 1 - k) * 0.15
+        assert hi[k, 0] == pytest.approx(min(lim.v_max, 1.0 + 0.15 * (k + 1), stop))
+        assert lo[k, 0] == pytest.approx(max(lim.v_min, 1.0 - 0.15 * (k + 1), -stop))
+        assert hi[k, 1] == pytest.approx(min(lim.w_max, 0.5 + 0.4 * (k + 1)))
+        assert lo[k, 1] == pytest.approx(max(-lim.w_max, 0.5 - 0.4 * (k + 1)))
+    # random plans within the input bounds, the rate bounds from u_prev and the terminal stop
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        u = np.empty((n, 2))
+        last = np.array([1.0, 0.5])
+        for k in range(n):
+            last = np.clip(last + rng.uniform(-1, 1, 2) * [0.15, 0.4], lim.lower(), lim.upper())
+            u[k] = last
+        # brake to the terminal stop as late as the rate bound allows
+        for k in range(n - 1, -1, -1):
+            u[k, 0] = np.clip(u[k, 0], -(n - 1 - k) * 0.15, (n - 1 - k) * 0.15)
+        assert np.all(np.abs(np.diff(np.vstack(([1.0, 0.5], u)), axis=0)) <= [0.15 + 1e-12, 0.4 + 1e-12])
+        assert np.all(u >= lo - 1e-12) and np.all(u <= hi + 1e-12)
