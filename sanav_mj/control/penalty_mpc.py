@@ -2,21 +2,42 @@
 
 Same model, horizon, weights, bounds and solver as SA-MPC (:class:`~sanav_mj.control.sa_mpc.MPCConfig`
 and the shared NLP of :mod:`sanav_mj.control.ocp`), but no safe areas and no position
-constraints: collision avoidance is the cost term :class:`ObstaclePenalty`, and the
-reference runs from the robot straight to the goal. This is the formulation the paper
-compares against (obstacles "incorporated into the MPC formulation through terms in the
-cost function rather than as hard feasibility constraints"); it is expected to get trapped
-in non-convex scenes (U, V). Measured on a kinematic plant: it passes a box whose inflated
-polygon overlaps the straight line by 0.25 m, but stops in front of one it would have to
-leave the line by 0.5 m to pass (the plan that stops at the polygon is a local minimum of
-the tracking cost, and a gradient method started from it never explores going around).
+constraints: collision avoidance is the cost term :class:`ObstaclePenalty` over the inflated
+obstacle polygons, and the reference is the straight line from the robot to the goal. This
+is the formulation the paper compares against (obstacles "incorporated into the MPC
+formulation through terms in the cost function rather than as hard feasibility
+constraints"); it is expected to get trapped in non-convex scenes (U, V).
+
+Four choices make the baseline pass a convex obstacle that blocks the straight line; the
+first version (reference starting at the robot, warm start only, product penalty) stopped in
+front of the block of ``single_rect`` in every run. See :class:`PenaltyConfig` and
+docs/results.md for the measurements behind them:
+
+- *Lookahead.* The reference starts ``lookahead`` metres ahead of the robot. When it starts
+  at the robot, lagging behind it costs only second order, so a plan that brakes in front
+  of the obstacle always beats one that swerves (checked with IPOPT from several initial
+  guesses at every approach distance on ``single_rect``). With a lookahead, lagging costs
+  first order and swerving becomes the better plan once the obstacle enters the horizon
+  (3 m: 10/10 on ``single_rect``; 2 m: 9/10, one near-tie lost at full speed).
+- *Escape starts.* A gradient method warm-started from a braking plan stays in that basin,
+  so when the plan is blocked (it enters a polygon and covers less than ``blocked_travel``
+  of the reference's distance) the same problem is also solved from two swerving initial
+  guesses (constant yaw rates of either sign) and the plan of lowest cost is kept. The
+  problem is unchanged; only the starting points differ (multi-start, no planner).
+- *Forward only.* With the lookahead a robot that starts facing away from the goal
+  prefers to reverse all the way (yaw error is cheap) and then has to turn in front of
+  the obstacle; the baseline drives forward only (``v_min = 0``).
+- *Penetration depth.* The penalty is the squared penetration depth of the inflated
+  polygon (``form="depth"``), equally strong along the whole boundary; the product form
+  (the mirror image of J_SA) vanishes to higher order near the vertices, where the plans
+  cut into the polygon (0.15 m at a corner in the kinematic test).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -34,27 +55,39 @@ from sanav_mj.control.sa_mpc import MPCConfig, get_backend
 from sanav_mj.control.unicycle import rollout_np
 from sanav_mj.scene import Obstacle, RobotParams
 
-#: Half-space padding a polygon slot: 0 x + 0 y <= 1 always holds with slack 1.
-_PAD_EDGE = (0.0, 0.0, 1.0)
+#: [m] slack of the padding rows of the "depth" penalty (never the nearest edge).
+_FAR = 1e6
 
 
-def obstacle_polygon(obstacle: Obstacle, inflation: float, circle_sides: int = 8) -> np.ndarray:
+def obstacle_polygon(obstacle: Obstacle, inflation: float, circle_sides: int = 8, corner_cuts: bool = True) -> np.ndarray:
     """Half-spaces ``a^T p <= b`` (M, 3) rows ``(ax, ay, b)`` of a convex polygon covering the inflated obstacle.
 
-    Boxes: the four edges pushed out by ``inflation`` [m] (contains the box grown by a disc
-    of that radius). Cylinders and capsules (upright): the regular ``circle_sides``-gon
-    circumscribing the circle of radius ``radius + inflation``. Normals have unit length,
-    so ``b - a^T p`` is the distance [m] to each edge line.
+    The inflated obstacle is the footprint grown by a disc of radius ``inflation`` [m]. Boxes:
+    the octagon of its supporting lines normal to the four edges and to the four corner
+    bisectors (the edges pushed out by ``inflation``, the corners cut by the tangents of
+    the corner arcs), rows in the order edge, corner, edge, ...; with ``corner_cuts``
+    False only the four edges (a rectangle with sharp corners, up to ``0.41 inflation``
+    beyond the inflated box; the penalty, a product over the edges, is quartic in the depth
+    near such a corner and the plans cut it). Cylinders and
+    capsules (upright): the regular ``circle_sides``-gon circumscribing the circle of
+    radius ``radius + inflation``. Normals have unit length, so ``b - a^T p`` is the
+    distance [m] to each edge line.
     """
     c = np.asarray(obstacle.center, dtype=float)
     if obstacle.kind == "box":
         corners = obstacle.corners()
+        normals = []
+        for i in range(4):
+            edge = corners[(i + 1) % 4] - corners[i]
+            normals.append(np.array([edge[1], -edge[0]]) / np.hypot(*edge))  # outward for counter-clockwise corners
         rows = []
         for i in range(4):
-            p, q = corners[i], corners[(i + 1) % 4]
-            edge = q - p
-            n = np.array([edge[1], -edge[0]]) / np.hypot(*edge)  # outward for counter-clockwise corners
-            rows.append((n[0], n[1], n @ p + inflation))
+            n, q = normals[i], corners[(i + 1) % 4]  # edge i ends at corner i + 1 ...
+            m = n + normals[(i + 1) % 4]  # ... where edge i + 1 starts: the corner's bisector
+            m = m / np.hypot(*m)
+            rows.append((n[0], n[1], n @ q + inflation))
+            if corner_cuts:
+                rows.append((m[0], m[1], m @ q + inflation))
         return np.array(rows)
     r = float(obstacle.half_size[0]) + inflation
     ang = 2 * np.pi * np.arange(circle_sides) / circle_sides
@@ -66,21 +99,35 @@ def obstacle_polygon(obstacle: Obstacle, inflation: float, circle_sides: int = 8
 class ObstaclePenalty:
     """Cost of entering convex polygons, a :class:`~sanav_mj.control.ocp.PositionCost`.
 
-    ``J_obs(p) = sum_j w_j prod_i [h_ji(p)]_+^2`` with ``h_ji = b_ji - a_ji^T p`` the edge
-    "depths" of polygon j, positive inside (the mirror image of the paper's J_SA): zero
-    outside every polygon, and inside its gradient has a component along every edge, so
-    it pushes towards the nearest way out rather than only straight back. The rows are
-    normalised by the polygon's inradius so each factor is O(1). Parameters per slot:
-    ``n_edges`` rows ``(ax, ay, b)`` then the weight ``w`` (0 for an unused slot); unused
-    edges are ``(0, 0, 1)`` (a neutral factor 1).
+    ``h_ji = b_ji - a_ji^T p`` is the signed distance [m] of ``p`` inside edge line i of
+    polygon j (unit normals; positive inside). Two forms, both zero outside every polygon
+    and positive inside:
+
+    - ``"depth"``: ``J_obs(p) = sum_j w_j [min_i h_ji(p)]_+^2``, the squared penetration
+      depth (the distance to the nearest edge) [m^2], so ``w_j`` is in [1/m^2]. Its gradient
+      is continuous (zero on the boundary) and pushes straight out through the nearest edge;
+      it is equally strong everywhere along the boundary, corners included.
+    - ``"product"``: ``J_obs(p) = sum_j w_j prod_i [h_ji(p)]_+^2`` (the mirror image of the
+      paper's J_SA, the usual form with PANOC); smooth, but it vanishes to higher order
+      near every vertex, where the plans cut into the polygon. Rows are best normalised
+      (:func:`normalised_rows`) so each factor is O(1).
+
+    Parameters per slot: ``n_edges`` rows ``(ax, ay, b)`` then the weight ``w`` (0 for an
+    unused slot); unused edges are :meth:`pad_row` (never the binding edge, or a neutral
+    factor 1).
     """
 
     n_slots: int
     n_edges: int
+    form: str = "depth"
+
+    def __post_init__(self) -> None:
+        if self.form not in ("depth", "product"):
+            raise ValueError(f"ObstaclePenalty.form must be 'depth' or 'product', got {self.form!r}")
 
     @property
     def key(self) -> str:
-        return f"obsprod{self.n_slots}x{self.n_edges}"
+        return f"obs{self.form}{self.n_slots}x{self.n_edges}"
 
     @property
     def slot_size(self) -> int:
@@ -90,25 +137,42 @@ class ObstaclePenalty:
     def n_params(self) -> int:
         return self.n_slots * self.slot_size
 
+    def pad_row(self) -> tuple[float, float, float]:
+        """Row of an unused edge: ``0 x + 0 y <= b`` with ``b`` 1 (product) or 1e6 m (depth)."""
+        return (0.0, 0.0, 1.0) if self.form == "product" else (0.0, 0.0, _FAR)
+
     def expr(self, p, theta):
         total = 0
         for j in range(self.n_slots):
             s = theta[j * self.slot_size : (j + 1) * self.slot_size]
-            prod = 1
-            for i in range(self.n_edges):
-                h = s[3 * i + 2] - s[3 * i] * p[0] - s[3 * i + 1] * p[1]
-                prod = prod * cs.fmax(0, h) ** 2
-            total = total + s[-1] * prod
+            hs = [s[3 * i + 2] - s[3 * i] * p[0] - s[3 * i + 1] * p[1] for i in range(self.n_edges)]
+            if self.form == "product":
+                term = 1
+                for h in hs:
+                    term = term * cs.fmax(0, h) ** 2
+            else:
+                depth = hs[0]
+                for h in hs[1:]:
+                    depth = cs.fmin(depth, h)
+                term = cs.fmax(0, depth) ** 2
+            total = total + s[-1] * term
         return total
 
     def value_np(self, p: np.ndarray, theta: np.ndarray) -> float:
         """NumPy value at ``p`` (2,) for parameters ``theta`` (n_params,)."""
-        total = 0.0
-        for s in np.asarray(theta, float).reshape(self.n_slots, self.slot_size):
-            e = s[:-1].reshape(self.n_edges, 3)
-            h = e[:, 2] - e[:, :2] @ p
-            total += s[-1] * float(np.prod(np.maximum(h, 0.0) ** 2))
-        return total
+        return float(self.values_np(np.asarray(p, dtype=float).reshape(1, 2), theta)[0])
+
+    def values_np(self, points: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """NumPy values (K,) at ``points`` (K, 2) [m] for parameters ``theta`` (n_params,)."""
+        slots = np.asarray(theta, dtype=float).reshape(self.n_slots, self.slot_size)
+        edges = slots[:, :-1].reshape(self.n_slots, self.n_edges, 3)
+        pts = np.asarray(points, dtype=float).reshape(-1, 2)
+        h = edges[None, :, :, 2] - np.einsum("kp,sep->kse", pts, edges[:, :, :2])
+        if self.form == "product":
+            terms = np.prod(np.maximum(h, 0.0) ** 2, axis=2)
+        else:
+            terms = np.maximum(np.min(h, axis=2), 0.0) ** 2
+        return terms @ slots[:, -1]
 
 
 def normalised_rows(poly: np.ndarray, centre: np.ndarray) -> np.ndarray:
@@ -117,18 +181,98 @@ def normalised_rows(poly: np.ndarray, centre: np.ndarray) -> np.ndarray:
     return poly / depth if depth > 1e-6 else poly
 
 
+@dataclass(frozen=True)
+class PenaltyConfig:
+    """Settings of the obstacle-penalty baseline beyond the shared :class:`MPCConfig`.
+
+    Attributes:
+        q_obs: weight of each polygon's penalty (see :class:`ObstaclePenalty`): [1/m^2] for
+            the ``"depth"`` form; [-] for ``"product"``, whose rows are normalised by the
+            polygon's inradius.
+        form: ``"depth"`` or ``"product"``, see :class:`ObstaclePenalty`.
+        n_slots: obstacles considered per step (nearest polygon centres first).
+        n_edges: edges per polygon slot: cylinders and capsules are ``n_edges``-gons, boxes
+            octagons (4 edges and 4 corner cuts, see :func:`obstacle_polygon`) when
+            ``n_edges >= 8``, else rectangles.
+        reference_speed: [m/s] speed along the straight reference; None -> 0.8 v_max.
+        lookahead: [m] the reference starts this far ahead of the robot on the straight
+            line to the goal (0: at the robot; it never passes the goal).
+        forward_only: drive forwards only (``v_min = 0``) instead of the shared ``v_min``.
+        escape_yaw_rates: [rad/s] yaw rates of the extra initial guesses tried when the plan
+            is blocked (each held for ``escape_steps`` steps, then 0); empty: never.
+        escape_steps: steps of the horizon that turn in an escape guess.
+        escape_speed: [m/s] lowest forward speed of an escape guess (it drives at
+            ``max(previous speed, escape_speed)``).
+        blocked_travel: the plan counts as blocked when it enters a polygon and its path is
+            shorter than this fraction of the reference's ``N * reference_speed * dt``.
+        min_outer_iter: lower bound of the ALM outer-iteration limit of the baseline's solver
+            (``max(MPCConfig.max_outer_iter, min_outer_iter)``). Its costs are about ten
+            times SA-MPC's (the reference lies ahead of the robot) and cold starts need more
+            passes to meet the rate bounds: with 8 (SA-MPC's setting for a while), the first
+            solve of every ``single_rect`` run failed.
+    """
+
+    q_obs: float = 3000.0
+    form: str = "depth"
+    n_slots: int = 8
+    n_edges: int = 8
+    reference_speed: float | None = None
+    lookahead: float = 3.0
+    forward_only: bool = True
+    escape_yaw_rates: tuple[float, ...] = (1.0, -1.0)
+    escape_steps: int = 10
+    escape_speed: float = 0.3
+    blocked_travel: float = 0.6
+    min_outer_iter: int = 20
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.q_obs, (int, float)) and math.isfinite(self.q_obs) and self.q_obs > 0):
+            raise ValueError(f"PenaltyConfig.q_obs must be a positive finite number, got {self.q_obs!r}")
+        if self.form not in ("depth", "product"):
+            raise ValueError(f"PenaltyConfig.form must be 'depth' or 'product', got {self.form!r}")
+        if not (isinstance(self.n_slots, int) and self.n_slots >= 1):
+            raise ValueError(f"PenaltyConfig.n_slots must be an integer >= 1, got {self.n_slots!r}")
+        if not (isinstance(self.n_edges, int) and self.n_edges >= 4):
+            raise ValueError(f"PenaltyConfig.n_edges must be an integer >= 4, got {self.n_edges!r}")
+        rs = self.reference_speed
+        if rs is not None and not (isinstance(rs, (int, float)) and math.isfinite(rs) and rs > 0):
+            raise ValueError(f"PenaltyConfig.reference_speed must be None or a positive finite m/s, got {rs!r}")
+        if not (isinstance(self.lookahead, (int, float)) and math.isfinite(self.lookahead) and self.lookahead >= 0):
+            raise ValueError(f"PenaltyConfig.lookahead must be a finite number >= 0 m, got {self.lookahead!r}")
+        rates = self.escape_yaw_rates
+        if not (isinstance(rates, tuple) and all(isinstance(w, (int, float)) and math.isfinite(w) for w in rates)):
+            raise ValueError(f"PenaltyConfig.escape_yaw_rates must be a tuple of finite rad/s, got {rates!r}")
+        if not (isinstance(self.escape_steps, int) and self.escape_steps >= 1):
+            raise ValueError(f"PenaltyConfig.escape_steps must be an integer >= 1, got {self.escape_steps!r}")
+        es = self.escape_speed
+        if not (isinstance(es, (int, float)) and math.isfinite(es) and es >= 0):
+            raise ValueError(f"PenaltyConfig.escape_speed must be a finite number >= 0 m/s, got {es!r}")
+        bt = self.blocked_travel
+        if not (isinstance(bt, (int, float)) and 0 < bt <= 1):
+            raise ValueError(f"PenaltyConfig.blocked_travel must be in (0, 1], got {bt!r}")
+        mo = self.min_outer_iter
+        if not (isinstance(mo, int) and mo >= 1):
+            raise ValueError(f"PenaltyConfig.min_outer_iter must be an integer >= 1, got {mo!r}")
+
+
 class PenaltyMPC:
     """Obstacle-penalty MPC (the paper's baseline), implementing the Controller protocol.
 
-    Each step the ``n_slots`` obstacles nearest the robot (polygon centroid distance) fill
-    the penalty slots; the reference is the straight segment from the measured position to
-    the goal at ``reference_speed``, with the goal's bearing as yaw (shifted to the measured
-    branch) and zero inputs once at the goal. Warm start, rate bounds, failure handling and
-    fallbacks (shift the previous plan, then brake) are those of SA-MPC.
+    Each step the ``n_slots`` obstacles nearest the robot (polygon centre distance) fill the
+    penalty slots; the reference runs along the straight line from the measured position to
+    the goal, from ``lookahead`` ahead of the robot at ``reference_speed`` (stopping at the
+    goal), with the goal's bearing as yaw (shifted to the measured branch) and zero inputs
+    once the reference has reached the goal. The problem is solved from the shifted previous
+    plan; when that plan is blocked, also from the escape guesses, keeping the cheapest
+    acceptable plan (:class:`PenaltyConfig`). Rate bounds, failure handling and fallbacks
+    (shift the previous plan, then brake) are those of SA-MPC.
 
     Attributes:
         name: ``"mpc"``. dt: [s]. needs_ranges: False.
-        stats_counts: per-episode status counts; ``failures`` the fallback steps.
+        stats_counts: per-episode status counts (``ok``, ``inexact``, ``fallback_*``) plus
+            ``escape_tried`` (steps that solved from the escape guesses) and ``escape_taken``
+            (steps whose plan came from one of them).
+        failures: the fallback steps.
     """
 
     name = "mpc"
@@ -141,11 +285,8 @@ class PenaltyMPC:
         inflation: float,
         goal: np.ndarray,
         config: MPCConfig = MPCConfig(),
+        penalty: PenaltyConfig = PenaltyConfig(),
         *,
-        q_obs: float = 300.0,
-        n_slots: int = 8,
-        n_edges: int = 8,
-        reference_speed: float | None = None,
         failure_injector: Callable[[int], bool] | None = None,
     ):
         """Build the controller.
@@ -156,43 +297,40 @@ class PenaltyMPC:
             inflation: [m] how much each obstacle is grown (footprint radius + margin).
             goal: (2,) [m] goal position.
             config: shared MPC settings (horizon, weights, bounds, solver).
-            q_obs: weight of each polygon's penalty (see :class:`ObstaclePenalty`).
-            n_slots: obstacles considered per step (nearest first).
-            n_edges: edges per polygon slot (boxes use 4, circles ``n_edges``-gons).
-            reference_speed: [m/s] speed along the straight reference; None -> 0.8 v_max.
+            penalty: the baseline's own settings.
             failure_injector: test hook called with the step index; True fails that solve.
         """
-        if not (math.isfinite(inflation) and inflation >= 0):
+        if not (isinstance(inflation, (int, float)) and math.isfinite(inflation) and inflation >= 0):
             raise ValueError(f"inflation must be a finite number >= 0 m, got {inflation!r}")
-        if not (math.isfinite(q_obs) and q_obs > 0):
-            raise ValueError(f"q_obs must be a positive finite number, got {q_obs!r}")
-        if not (isinstance(n_slots, int) and n_slots >= 1 and isinstance(n_edges, int) and n_edges >= 4):
-            raise ValueError(f"n_slots must be >= 1 and n_edges >= 4, got {n_slots!r}, {n_edges!r}")
         goal = np.asarray(goal, dtype=float).reshape(-1)[:2]
         if goal.shape != (2,) or not np.all(np.isfinite(goal)):
             raise ValueError(f"goal must be 2 finite numbers [m], got {goal!r}")
+        if config.max_outer_iter < penalty.min_outer_iter:
+            config = replace(config, max_outer_iter=penalty.min_outer_iter)
         self.config = config
+        self.settings = penalty
         self.robot = robot
         self.dt = float(config.dt)
         self.N = config.horizon
-        self.limits = config.limits(robot)
+        limits = config.limits(robot)
+        self.limits = replace(limits, v_min=0.0) if penalty.forward_only else limits
         self.goal = goal
         self.failure_injector = failure_injector
-        self.reference_speed = 0.8 * self.limits.v_max if reference_speed is None else float(reference_speed)
-        if not (self.reference_speed > 0):
-            raise ValueError(f"reference_speed must be > 0 m/s, got {reference_speed!r}")
-        self.penalty = ObstaclePenalty(n_slots, n_edges)
-        polys = [obstacle_polygon(o, inflation, n_edges) for o in obstacles]
+        self.reference_speed = 0.8 * self.limits.v_max if penalty.reference_speed is None else float(penalty.reference_speed)
+        n_edges = penalty.n_edges
+        self.penalty = ObstaclePenalty(penalty.n_slots, n_edges, penalty.form)
+        polys = [obstacle_polygon(o, inflation, n_edges, corner_cuts=n_edges >= 8) for o in obstacles]
         self._slots = np.zeros((len(polys), self.penalty.slot_size))
         self._centres = np.zeros((len(polys), 2))
         for i, (o, poly) in enumerate(zip(obstacles, polys)):
-            rows = np.tile(_PAD_EDGE, (n_edges, 1))
-            rows[: len(poly)] = normalised_rows(poly[:n_edges], o.center)
+            rows = np.tile(self.penalty.pad_row(), (n_edges, 1))
+            rows[: len(poly)] = normalised_rows(poly, o.center) if penalty.form == "product" else poly
             self._slots[i, :-1] = rows.ravel()
-            self._slots[i, -1] = q_obs
+            self._slots[i, -1] = penalty.q_obs
             self._centres[i] = o.center
-        self._empty_slot = np.concatenate((np.tile(_PAD_EDGE, n_edges), [0.0]))
+        self._empty_slot = np.concatenate((np.tile(self.penalty.pad_row(), n_edges), [0.0]))
         self.ocp = build_tracking_ocp(self.N, self.dt, self.penalty, position_constraints=False)
+        self._objective = self.ocp.functions()[0]
         cache = Path(config.cache_dir) if config.cache_dir else None
         self.backend = get_backend(self.ocp, config.solver, config.solver_settings(), cache)
         n = self.N
@@ -225,13 +363,19 @@ class PenaltyMPC:
         return sum(v for k, v in self.stats_counts.items() if k.startswith("fallback"))
 
     def reference(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Straight reference to the goal: states (N+1, 3) and inputs (N, 2)."""
+        """Straight reference to the goal from ``pose`` (3,): states (N+1, 3) and inputs (N, 2).
+
+        Sample k lies ``min(lookahead + k * reference_speed * dt, distance to goal)`` along
+        the line from the robot to the goal; its input is ``(reference_speed, 0)`` until the
+        samples reach the goal, then zero. Within 0.1 m of the goal the yaw reference is the
+        measured yaw (no spinning at the goal).
+        """
         d = self.goal - pose[:2]
         dist = float(np.hypot(*d))
         n = self.N
-        heading = math.atan2(d[1], d[0]) if dist > 0.1 else float(pose[2])  # no spinning at the goal
+        heading = math.atan2(d[1], d[0]) if dist > 0.1 else float(pose[2])
         heading = pose[2] + (heading - pose[2] + math.pi) % (2 * math.pi) - math.pi
-        s = np.minimum(np.arange(n + 1) * self.reference_speed * self.dt, dist)
+        s = np.minimum(self.settings.lookahead + np.arange(n + 1) * self.reference_speed * self.dt, dist)
         unit = d / dist if dist > 1e-6 else np.zeros(2)
         xr = np.column_stack((pose[0] + s * unit[0], pose[1] + s * unit[1], np.full(n + 1, heading)))
         ur = np.zeros((n, 2))
@@ -246,8 +390,46 @@ class PenaltyMPC:
             out[: len(order)] = self._slots[order]
         return out.ravel()
 
+    def _accept(self, res, z_lb: np.ndarray, z_ub: np.ndarray) -> str | None:
+        """Status (``"ok"``/``"inexact"``) of an acceptable solution, or None (with the reason stored)."""
+        z = res.z
+        if not np.all(np.isfinite(z)):
+            self._reject_reason = f"nonfinite:{res.status}"
+            return None
+        u = z.reshape(self.N, 2)
+        tol = 10 * self.config.constraint_tol + 1e-9
+        viol = max(
+            float(np.max(z_lb - z, initial=0.0)),
+            float(np.max(z - z_ub, initial=0.0)),
+            float(np.max(np.abs(np.diff(u, axis=0)) - self._rate_step, initial=0.0)),
+        )
+        if viol <= tol and (res.converged or self.config.accept_inexact):
+            return "ok" if res.converged else "inexact"
+        self._reject_reason = f"rejected:{res.status}:viol={viol:.2e}"
+        return None
+
+    def blocked(self, x0: np.ndarray, u: np.ndarray, theta: np.ndarray) -> bool:
+        """Whether the plan ``u`` (N, 2) from ``x0`` (3,) enters a polygon (penalty parameters
+        ``theta``) and covers less than ``blocked_travel`` of the reference's distance."""
+        pred = rollout_np(x0, u, self.dt)
+        if not np.any(self.penalty.values_np(pred[1:, :2], theta) > 0):
+            return False
+        travel = float(np.sum(np.hypot(*np.diff(pred[:, :2], axis=0).T)))
+        return travel < self.settings.blocked_travel * self.N * self.reference_speed * self.dt
+
+    def escape_guesses(self) -> list[np.ndarray]:
+        """Extra initial guesses (N, 2) [m/s, rad/s]: turn at each escape yaw rate, then straight."""
+        v = max(float(self._u_prev[0]), self.settings.escape_speed)
+        out = []
+        for w in self.settings.escape_yaw_rates:
+            g = np.zeros((self.N, 2))
+            g[:, 0] = v
+            g[: self.settings.escape_steps, 1] = w
+            out.append(g)
+        return out
+
     def step(self, obs: Observation) -> Command:
-        """Command for the next period (wall time of the whole step in ``solve_ms``)."""
+        """Command for the next period (wall time of the whole step, every solve, in ``solve_ms``)."""
         t0 = time.perf_counter()
         n = self.N
         k_step = self._step_index
@@ -270,7 +452,8 @@ class PenaltyMPC:
         p[sl["u_prev"]] = self._u_prev
         p[sl["x_ref"]] = xr.ravel()
         p[sl["u_ref"]] = ur.ravel()
-        p[sl["extra"]] = self._obstacle_params(x0[:2])
+        theta = self._obstacle_params(x0[:2])
+        p[sl["extra"]] = theta
         z0 = np.clip(u_guess.ravel(), z_lb, z_ub)
         y0 = y_z0 = None
         if self._plan is not None and self._next == 1 and self._y is not None:
@@ -279,26 +462,28 @@ class PenaltyMPC:
         if self.failure_injector is not None and self.failure_injector(k_step):
             return self._fallback(x0, t0, "injected")
         res = self.backend.solve(p, z_lb, z_ub, self._g_lb, self._g_ub, z0, y0, y_z0)
-        z = res.z
-        if not np.all(np.isfinite(z)):
-            return self._fallback(x0, t0, f"nonfinite:{res.status}")
-        u = z.reshape(n, 2)
-        tol = 10 * self.config.constraint_tol + 1e-9
-        viol = max(
-            float(np.max(z_lb - z, initial=0.0)),
-            float(np.max(z - z_ub, initial=0.0)),
-            float(np.max(np.abs(np.diff(u, axis=0)) - self._rate_step, initial=0.0)),
-        )
-        if res.converged and viol <= tol:
-            status = "ok"
-        elif self.config.accept_inexact and viol <= tol:
-            status = "inexact"
-        else:
-            return self._fallback(x0, t0, f"rejected:{res.status}:viol={viol:.2e}")
+        status = self._accept(res, z_lb, z_ub)
+        if self.settings.escape_yaw_rates and (status is None or self.blocked(x0, res.z.reshape(n, 2), theta)):
+            self._count("escape_tried")
+            best = float(self._objective(res.z, p)) if status is not None else math.inf
+            taken = False
+            for guess in self.escape_guesses():
+                alt = self.backend.solve(p, z_lb, z_ub, self._g_lb, self._g_ub, np.clip(guess.ravel(), z_lb, z_ub))
+                alt_status = self._accept(alt, z_lb, z_ub)
+                if alt_status is None:
+                    continue
+                cost = float(self._objective(alt.z, p))
+                if cost < best:
+                    res, status, best, taken = alt, alt_status, cost, True
+            if taken:
+                self._count("escape_taken")
+        if status is None:
+            return self._fallback(x0, t0, self._reject_reason)
+        u = res.z.reshape(n, 2)
         self._plan, self._next = u.copy(), 1
         self._y, self._y_z = np.asarray(res.y, float), res.y_z
         self._u_prev = u[0].copy()
-        self.stats_counts[status] = self.stats_counts.get(status, 0) + 1
+        self._count(status)
         return Command(
             v=float(u[0, 0]),
             w=float(u[0, 1]),
@@ -307,6 +492,9 @@ class PenaltyMPC:
             ok=True,
             predicted=rollout_np(x0, u, self.dt),
         )
+
+    def _count(self, key: str) -> None:
+        self.stats_counts[key] = self.stats_counts.get(key, 0) + 1
 
     def _fallback(self, x0: np.ndarray, t0: float, reason: str) -> Command:
         if self._plan is not None and self._next < len(self._plan):

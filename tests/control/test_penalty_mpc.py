@@ -1,6 +1,8 @@
-"""Obstacle-penalty MPC baseline: polygons, the penalty term, closed loop, fallbacks."""
+"""Obstacle-penalty MPC baseline: polygons, the penalty term, reference, closed loop, fallbacks."""
 
 from __future__ import annotations
+
+import math
 
 import casadi as cs
 import numpy as np
@@ -8,7 +10,13 @@ import pytest
 from mpc_cases import ROBOT
 
 from sanav_mj.control.base import Observation
-from sanav_mj.control.penalty_mpc import ObstaclePenalty, PenaltyMPC, normalised_rows, obstacle_polygon
+from sanav_mj.control.penalty_mpc import (
+    ObstaclePenalty,
+    PenaltyConfig,
+    PenaltyMPC,
+    normalised_rows,
+    obstacle_polygon,
+)
 from sanav_mj.control.sa_mpc import MPCConfig
 from sanav_mj.control.unicycle import step_np
 from sanav_mj.scene import Obstacle
@@ -46,32 +54,68 @@ def test_polygon_covers_the_inflated_obstacle(obs):
     assert not _inside(poly, obs.center[None] + np.array([[3.0, 0.0]])).any()
 
 
-def test_penalty_matches_numpy_and_is_zero_outside():
-    pen = ObstaclePenalty(2, 8)
+@pytest.mark.parametrize("form", ["depth", "product"])
+def test_penalty_matches_numpy_zero_outside_positive_inside(form):
+    pen = ObstaclePenalty(3, 8, form)
     poly_a = obstacle_polygon(_box(0.0, 0.0, 0.3, 0.5, 0.5), 0.1)
-    theta = np.zeros((2, pen.slot_size))
-    rows = np.tile([0.0, 0.0, 1.0], (8, 1))
-    rows[:4] = poly_a
-    theta[0, :-1], theta[0, -1] = rows.ravel(), 100.0
-    theta[1, :-1] = obstacle_polygon(_cyl(3.0, 0.0, 0.4), 0.1).ravel()
-    theta[1, -1] = 50.0
+    poly_b = obstacle_polygon(_cyl(3.0, 0.0, 0.4), 0.1)
+    theta = np.zeros((3, pen.slot_size))
+    theta[0, :-1], theta[0, -1] = poly_a.ravel(), 100.0
+    theta[1, :-1], theta[1, -1] = poly_b.ravel(), 50.0
+    theta[2, :-1] = np.tile(pen.pad_row(), 8)  # an unused slot (weight 0)
     p = cs.SX.sym("p", 2)
     th = cs.SX.sym("th", pen.n_params)
     f = cs.Function("f", [p, th], [pen.expr(p, th)])
-    for pt in np.random.default_rng(1).uniform(-1.5, 4.5, (300, 2)):
-        want = pen.value_np(pt, theta.ravel())
+    pts = np.random.default_rng(1).uniform(-1.5, 4.5, (300, 2))
+    values = pen.values_np(pts, theta.ravel())
+    inside = _inside(poly_a, pts) | _inside(poly_b, pts)
+    assert 10 < inside.sum() < 290
+    assert np.all(values[~inside] == 0.0) and np.all(values[inside] > 0.0)
+    for pt, want in zip(pts, values):
         assert float(f(pt, theta.ravel())) == pytest.approx(want, rel=1e-9, abs=1e-12)
-        inside = _inside(poly_a, pt[None])[0] or _inside(theta[1, :-1].reshape(8, 3), pt[None])[0]
-        if not inside:
-            assert want == 0.0
-    # at the centre of the box every edge is 0.5 + 0.1 m away: 100 * (0.6^2)^4
-    assert pen.value_np(np.zeros(2), theta.ravel()) == pytest.approx(100 * 0.6**8, rel=1e-12)
-    # inside, the gradient points towards the nearest way out (here: the bottom edge)
+        assert pen.value_np(pt, theta.ravel()) == want
+    # inside, the descent direction leads out through the nearest edge (here: the bottom one)
     g = cs.Function("g", [p, th], [cs.gradient(pen.expr(p, th), p)])
     theta_axis = theta.copy()
-    theta_axis[0, :12] = obstacle_polygon(_box(0.0, 0.0, 0.0, 0.5, 0.5), 0.1).ravel()
+    theta_axis[0, :-1] = obstacle_polygon(_box(0.0, 0.0, 0.0, 0.5, 0.5), 0.1).ravel()
     grad = np.array(g([0.0, -0.3], theta_axis.ravel())).ravel()
     assert grad[1] > 0 and abs(grad[0]) < 1e-12  # descent moves down, out through y = -0.6
+
+
+def test_depth_penalty_known_answers():
+    # box half 0.6 inflated by 0.4: edges 1.0 m from the centre, corner cuts 0.6 sqrt(2) + 0.4 m
+    pen = ObstaclePenalty(1, 8, "depth")
+    theta = np.concatenate((obstacle_polygon(_box(0.0, 0.0, 0.0, 0.6, 0.6), 0.4).ravel(), [2.0]))
+    cut = 0.6 * np.sqrt(2) + 0.4
+    pts = np.array([[0.0, 0.0], [0.5, 0.0], [0.5, -0.7], [0.99, 0.0], [1.0, 0.0], [1.2, 0.3], [-3.0, 0.0],
+                    [0.8, 0.8], [0.9, 0.9]])
+    # penetration depth = distance to the nearest edge line; (0.9, 0.9) is 0.42 m from the box
+    # corner (0.6, 0.6): outside the inflated box and outside the octagon
+    want = [2 * 1.0**2, 2 * 0.5**2, 2 * 0.3**2, 2 * 0.01**2, 0.0, 0.0, 0.0,
+            2 * min(0.2, cut - 0.8 * np.sqrt(2)) ** 2, 0.0]
+    np.testing.assert_allclose(pen.values_np(pts, theta), want, rtol=1e-12, atol=1e-15)
+
+
+def test_product_penalty_known_answers_on_a_normalised_square():
+    # square |x|, |y| <= 1 after normalisation by the inradius (box half 0.6 + inflation 0.4), weight 2
+    pen = ObstaclePenalty(1, 4, "product")
+    poly = obstacle_polygon(_box(0.0, 0.0, 0.0, 0.6, 0.6), 0.4, corner_cuts=False)
+    theta = np.concatenate((normalised_rows(poly, np.zeros(2)).ravel(), [2.0]))
+    pts = np.array([[0.0, 0.0], [0.5, 0.0], [0.5, -0.5], [0.99, 0.0], [1.0, 0.0], [1.2, 0.3], [-3.0, 0.0],
+                    [0.9, 0.9]])
+    want = [2.0, 2 * 1.5**2 * 0.5**2, 2 * (1.5 * 0.5) ** 4, 2 * 1.99**2 * 0.01**2, 0.0, 0.0, 0.0,
+            2 * (1.9 * 0.1) ** 4]
+    np.testing.assert_allclose(pen.values_np(pts, theta), want, rtol=1e-12, atol=1e-15)
+    # with the corner cuts (octagon), (0.9, 0.9) is outside and (0.8, 0.8) gets the cuts' factors
+    octagon = obstacle_polygon(_box(0.0, 0.0, 0.0, 0.6, 0.6), 0.4)
+    assert octagon.shape == (8, 3)
+    pen8 = ObstaclePenalty(1, 8, "product")
+    theta8 = np.concatenate((normalised_rows(octagon, np.zeros(2)).ravel(), [2.0]))
+    cut = 0.6 * np.sqrt(2) + 0.4  # distance of the corner cuts from the centre [m]
+    assert pen8.value_np(np.array([0.9, 0.9]), theta8) == 0.0
+    assert pen8.value_np(np.array([0.8, 0.8]), theta8) == pytest.approx(
+        2 * (0.2 * 1.8) ** 4 * ((cut - 0.8 * np.sqrt(2)) * (cut + 0.8 * np.sqrt(2))) ** 2 * cut**4, rel=1e-12
+    )
 
 
 def _run(ctl, start, goal, steps=300):
@@ -100,13 +144,65 @@ def test_drives_around_an_obstacle_off_the_straight_line():
     assert path[:, 1].min() < -0.2  # it went around below the box
 
 
-def test_stalls_in_front_of_an_obstacle_far_across_the_line():
-    # the documented weakness of the baseline: a local minimum in front of the obstacle
-    obs = [_box(2.5, 0.25, 0.0, 0.4, 0.4)]
+def test_drives_around_a_box_centred_on_the_straight_line():
+    # the single_rect situation: the straight line runs through the middle of the polygon
+    obs = [_box(2.5, 0.0, 0.0, 0.4, 0.4)]
     goal = np.array([5.0, 0.0])
     ctl = PenaltyMPC(ROBOT, obs, 0.35, goal, MPCConfig())
+    ok, path = _run(ctl, [0.0, 0.0, 0.0], goal)
+    assert ok and ctl.failures == 0
+    assert ctl.stats_counts.get("escape_taken", 0) >= 1  # the swerve came from an escape start
+    # soft cost: it may cut into the inflated polygon (0.35 m) a little, never to the footprint (0.3 m)
+    assert obs[0].signed_distance(path).min() > ROBOT.footprint_radius
+    assert np.abs(path[:, 1]).max() > 0.6  # it left the line by about the polygon's half width
+
+
+def test_without_lookahead_and_escapes_it_stops_in_front_of_the_box():
+    # the first version of the baseline (reference from the robot, warm start only): braking
+    # in front of the polygon is the better plan, so it never gets past (docs/results.md)
+    obs = [_box(2.5, 0.0, 0.0, 0.4, 0.4)]
+    goal = np.array([5.0, 0.0])
+    first = PenaltyConfig(lookahead=0.0, escape_yaw_rates=())
+    ctl = PenaltyMPC(ROBOT, obs, 0.35, goal, MPCConfig(), first)
     ok, path = _run(ctl, [0.0, 0.0, 0.0], goal, steps=80)
-    assert not ok and path[-1, 0] < 1.8
+    assert not ok and 1.0 < path[-1, 0] < 1.8 and np.abs(path[:, 1]).max() < 0.05
+
+
+def test_reference_known_answers():
+    goal = np.array([3.0, 4.0])  # 5 m from the origin, bearing atan2(4, 3)
+    cfg = PenaltyConfig(lookahead=1.0, reference_speed=2.5)
+    ctl = PenaltyMPC(ROBOT, [], 0.3, goal, MPCConfig(), cfg)  # N = 20, dt = 0.1 s
+    bearing = math.atan2(4.0, 3.0)
+    xr, ur = ctl.reference(np.array([0.0, 0.0, bearing]))
+    s = np.minimum(1.0 + 0.25 * np.arange(21), 5.0)  # 1 m ahead, 0.25 m per step, capped at the goal
+    np.testing.assert_allclose(xr[:, :2], np.column_stack((0.6 * s, 0.8 * s)), atol=1e-12)
+    np.testing.assert_allclose(xr[:, 2], bearing)
+    np.testing.assert_allclose(ur[:, 0], np.where(s[1:] < 5.0, 2.5, 0.0))
+    np.testing.assert_allclose(ur[:, 1], 0.0)
+    # facing away, on another yaw branch: same positions, yaw on the measured branch
+    xr2, _ = ctl.reference(np.array([0.0, 0.0, bearing + math.pi + 4 * math.pi - 0.1]))
+    np.testing.assert_allclose(xr2[:, :2], xr[:, :2], atol=1e-12)
+    np.testing.assert_allclose(xr2[:, 2], bearing + 4 * math.pi, atol=1e-9)
+
+
+def test_blocked_known_answers():
+    obs = [_box(2.0, 0.0, 0.0, 0.3, 0.3)]  # polygon x in [1.4, 2.6] with inflation 0.3
+    ctl = PenaltyMPC(ROBOT, obs, 0.3, np.array([5.0, 0.0]), MPCConfig(), PenaltyConfig(reference_speed=1.0))
+    theta = ctl._obstacle_params(np.zeros(2))
+    # the reference travels N * 1 m/s * dt = 2 m; a plan is blocked below 60 % of it (1.2 m)
+    creep = np.tile([1.1 / (ctl.N * ctl.dt), 0.0], (ctl.N, 1))  # 1.1 m
+    assert ctl.blocked(np.array([0.4, 0.0, 0.0]), creep, theta)  # ends at x = 1.5, inside
+    assert not ctl.blocked(np.array([-0.5, 0.0, 0.0]), creep, theta)  # ends at x = 0.6, outside
+    assert not ctl.blocked(np.array([0.4, 3.0, 0.0]), creep, theta)  # passes beside the polygon
+    fast = np.tile([1.3 / (ctl.N * ctl.dt), 0.0], (ctl.N, 1))  # 1.3 m, ends at x = 1.5, inside
+    assert not ctl.blocked(np.array([0.2, 0.0, 0.0]), fast, theta)
+
+
+def test_forward_only_sets_the_lower_speed_bound():
+    ctl = PenaltyMPC(ROBOT, [], 0.3, np.array([3.0, 0.0]))
+    assert ctl.limits.v_min == 0.0 and ctl._z_lb[0] == 0.0
+    both = PenaltyMPC(ROBOT, [], 0.3, np.array([3.0, 0.0]), MPCConfig(), PenaltyConfig(forward_only=False))
+    assert both.limits.v_min == MPCConfig().limits(ROBOT).v_min < 0
 
 
 def test_injected_failures_fall_back_then_recover():
@@ -121,6 +217,42 @@ def test_injected_failures_fall_back_then_recover():
         x = step_np(x, [cmd.v, cmd.w], 0.1)
     assert statuses[5:8] == ["fallback_shift"] * 3 and statuses[8] == "ok"
     assert ctl.failures == 3
+
+
+def test_fallbacks_are_finite_when_every_solve_fails_or_the_pose_is_nan():
+    goal = np.array([3.0, 0.0])
+    ctl = PenaltyMPC(ROBOT, [], 0.3, goal, MPCConfig(), failure_injector=lambda k: k >= 3)
+    x = np.zeros(3)
+    ctl.reset(x)
+    for k in range(3 + ctl.N + 5):
+        pose = x if k != 10 else np.array([np.nan, 0.0, 0.0])
+        cmd = ctl.step(Observation(t=0.1 * k, pose=pose, velocity=np.zeros(2)))
+        assert np.isfinite(cmd.v) and np.isfinite(cmd.w)
+        assert ctl.limits.v_min <= cmd.v <= ctl.limits.v_max and abs(cmd.w) <= ctl.limits.w_max
+        x = step_np(x, [cmd.v, cmd.w], 0.1)
+    assert cmd.status == "fallback_stop" and cmd.v == 0.0 and cmd.w == 0.0  # braked to rest
+    assert ctl.failures == ctl.N + 5
+
+
+@pytest.mark.parametrize(
+    "kwargs, fragment",
+    [
+        (dict(q_obs=0.0), "q_obs"),
+        (dict(form="sum"), "form"),
+        (dict(n_slots=0), "n_slots"),
+        (dict(n_edges=3), "n_edges"),
+        (dict(reference_speed=-1.0), "reference_speed"),
+        (dict(lookahead=-0.1), "lookahead"),
+        (dict(escape_yaw_rates=(1.0, float("nan"))), "escape_yaw_rates"),
+        (dict(escape_steps=0), "escape_steps"),
+        (dict(escape_speed=-1.0), "escape_speed"),
+        (dict(blocked_travel=0.0), "blocked_travel"),
+        (dict(min_outer_iter=0), "min_outer_iter"),
+    ],
+)
+def test_config_errors_name_the_field(kwargs, fragment):
+    with pytest.raises(ValueError, match=f"PenaltyConfig.{fragment}"):
+        PenaltyConfig(**kwargs)
 
 
 def test_bad_arguments_are_rejected():
