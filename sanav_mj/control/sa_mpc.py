@@ -85,10 +85,11 @@ class MPCConfig:
         solver: ``"pantr"`` (default: alpaqa ALM + PANTR, PANOC's trust-region Newton
             variant, compiled), ``"panoc"`` (alpaqa ALM + PANOC with L-BFGS, compiled: the
             paper's solver) or ``"ipopt"`` (through CasADi, the reference), see
-            :mod:`sanav_mj.control.ocp`. PANTR is the default because it was measured faster
-            in closed loop in MuJoCo (about 10 % lower mean and p99 step time, 20 instead of
-            ~100 iterations per solve) with the same success and tracking; see
-            docs/benchmarks.md.
+            :mod:`sanav_mj.control.ocp`. PANTR is the default for its shorter tail: in
+            MuJoCo (five scenarios x 10 seeds) its 99th-percentile step time was 3.5-4.0 ms
+            against PANOC's 4.5-4.6 ms (CPU), at a 10-15 % higher mean (1.1-1.2 against
+            1.0 ms) and the same success and tracking; PANOC solves the recorded sequence a
+            little faster on average (8.7x against 8.2x IPOPT); see docs/benchmarks.md.
         tol: optimality tolerance of the solver (PANOC: stationarity of the scaled problem;
             1e-3 moves the first input by < 2e-3 m/s against a 1e-9 IPOPT solution and
             saves about a quarter of PANOC's iterations against 1e-4, see docs/benchmarks.md).
@@ -638,8 +639,8 @@ class SAMPC:
     exactly and at no cost, whereas the rate rows go through the augmented Lagrangian. In
     cruise every plan brakes to its terminal stop at the rate bound over its last stages,
     and after a standstill it accelerates at it: with the implied bounds those active rate
-    rows no longer need multipliers, which cut the MuJoCo step time by 15 % on average and
-    its 99th percentile by 16 % (docs/benchmarks.md).
+    rows no longer need multipliers, which cut the MuJoCo step time by about 15 % on average
+    and at its 99th percentile with PANTR, and by 30-40 % with PANOC (docs/benchmarks.md).
 
     **Safety between samples.** ``p_k in S_k ⊂ C_{s(k)}`` and ``p_{k+1} in S_{k+1} ⊂ C_{s(k)}``,
     so the chord ``[p_k, p_{k+1}]`` lies in the convex member ``C_{s(k)}``, which lies in the
