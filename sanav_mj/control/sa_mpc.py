@@ -101,8 +101,11 @@ class MPCConfig:
             passages a few cm wide, where the last iterate is often still feasible within
             ``constraint_tol`` (``"inexact"``); a limit of 8 or 12 turned those into
             fallbacks (6x more on the generated clutter maps) for a lower maximum time.
-        solve_budget_ms: [ms] optional wall-clock limit of one solve; the solver stops and
-            its last iterate is used if it is feasible, else the fallback.
+        solve_budget_ms: [ms] wall-clock limit of one solve (None: none); the solver stops
+            and its last iterate is used if it is feasible, else the fallback. Default 50 ms,
+            half the default control period: a normal solve takes about 1 ms, but a few
+            (nearly) infeasible problems in cm-wide passages of generated maps ran all 20
+            ALM passes for up to 200 ms, longer than the period the command is for.
         accept_inexact: use a non-converged iterate when it is finite and satisfies every
             constraint (status ``"inexact"``); when False such a step takes the fallback.
         turn_in_place: [rad] when the heading error to the reference at the first step of an
@@ -135,7 +138,7 @@ class MPCConfig:
     constraint_tol: float = 1e-4
     max_iter: int = 300
     max_outer_iter: int = 20
-    solve_budget_ms: float | None = None
+    solve_budget_ms: float | None = 50.0
     accept_inexact: bool = True
     turn_in_place: float | None = 1.0
     turn_exit: float = 0.3
