@@ -8,10 +8,11 @@
    previous input, reference, stage boxes, J_SA areas, bounds) is recorded with its tight
    optimum.
 2. Replay: each back-end solves the same sequence in order, warm-started from its own
-   shifted previous solution (primal and multipliers) exactly as the controller does. Wall
-   and CPU time of each ``backend.solve`` call (the Python call included) are measured, and
-   the quality of each answer against the tight optimum: cost excess, constraint violation,
-   first-input difference.
+   shifted previous solution (primal and multipliers) exactly as the controller does; the
+   back-ends take turns problem by problem, so a change of the machine's load hits them
+   alike. Wall and CPU time of each ``backend.solve`` call (the Python call included) are
+   measured, and the quality of each answer against the tight optimum: cost excess,
+   constraint violation, first-input difference.
 3. Closed loop: each back-end also drives its own closed loop on the same corridors; the
    controller's whole step (``Command.solve_ms``) and the tracking error are reported.
 4. Construction: a fresh process builds the controller with an empty cache (code
@@ -173,110 +174,129 @@ def closed_loop(ctl: SAMPC, plan: Plan, yaw: float, steps: int = 400, record: li
     }
 
 
-def replay(backend, ocp, problems, rate_step) -> dict:
-    """Solve the recorded problems in order, warm-starting from the own shifted solution."""
+def replay(backends: dict, ocp, problems, rate_step) -> dict:
+    """Solve the recorded problems in order with every back-end, each warm-started from its
+    own shifted previous solution; the back-ends take turns problem by problem (starting
+    with a different one each time), so that a change of the machine's load affects them
+    alike and their time ratios stay meaningful. Returns name -> statistics."""
     import casadi as cs
 
     fcost = cs.Function("f", [ocp.z, ocp.p], [ocp.f])
     gfun = cs.Function("g", [ocp.z, ocp.p], [ocp.g])
     n = ocp.horizon
-    wall, cpu, excess, viol, du0, iters, conv = [], [], [], [], [], [], 0
-    prev = None
-    for (p, z_lb, z_ub, g_lb, g_ub), z_star in problems:
-        if prev is None:
-            z0, y0, yz0 = np.zeros(2 * n), None, None
-        else:
-            z0 = shift_inputs(prev.z.reshape(n, 2), 1, n, rate_step, prev.z[:2]).ravel()
-            y0 = shift_multipliers(ocp, prev.y, shift_rates=False)  # as SAMPC does
-            yz0 = shift_bound_multipliers(prev.y_z)
-        z0 = np.clip(z0, z_lb, z_ub)
-        t0, c0 = time.perf_counter(), time.process_time()
-        res = backend.solve(p, z_lb, z_ub, g_lb, g_ub, z0, y0, yz0)
-        wall.append((time.perf_counter() - t0) * 1e3)
-        cpu.append((time.process_time() - c0) * 1e3)
-        prev = res
-        conv += res.converged
-        iters.append(res.iterations)
+    names = list(backends)
+    acc = {name: {"wall": [], "cpu": [], "excess": [], "viol": [], "du0": [], "iters": [], "conv": 0, "prev": None}
+           for name in names}  # fmt: skip
+    for i, ((p, z_lb, z_ub, g_lb, g_ub), z_star) in enumerate(problems):
         f_star = float(fcost(z_star, p))
-        excess.append(float(fcost(res.z, p)) - f_star)
-        g = np.array(gfun(res.z, p)).ravel()
-        viol.append(max(np.max(g_lb - g, initial=0), np.max(g - g_ub, initial=0), np.max(z_lb - res.z, initial=0), np.max(res.z - z_ub, initial=0)))
-        du0.append(float(np.max(np.abs(res.z[:2] - z_star[:2]))))
-    wall, cpu = np.array(wall), np.array(cpu)
-    return {
-        "solves": len(wall),
-        "converged": int(conv),
-        "wall_ms_mean": float(wall.mean()),
-        "wall_ms_p50": float(np.median(wall)),
-        "wall_ms_p99": float(np.percentile(wall, 99)),
-        "wall_ms_max": float(wall.max()),
-        "cpu_ms_mean": float(cpu.mean()),
-        "cpu_ms_p99": float(np.percentile(cpu, 99)),
-        "iterations_mean": float(np.mean(iters)),
-        "cost_excess_mean": float(np.mean(excess)),
-        "cost_excess_max": float(np.max(excess)),
-        "violation_max": float(np.max(viol)),
-        "du0_max": float(np.max(du0)),
-    }
+        for j in range(len(names)):
+            name = names[(i + j) % len(names)]
+            a, prev = acc[name], acc[name]["prev"]
+            if prev is None:
+                z0, y0, yz0 = np.zeros(2 * n), None, None
+            else:
+                z0 = shift_inputs(prev.z.reshape(n, 2), 1, n, rate_step, prev.z[:2]).ravel()
+                y0 = shift_multipliers(ocp, prev.y, shift_rates=False)  # as SAMPC does
+                yz0 = shift_bound_multipliers(prev.y_z)
+            z0 = np.clip(z0, z_lb, z_ub)
+            t0, c0 = time.perf_counter(), time.process_time()
+            res = backends[name].solve(p, z_lb, z_ub, g_lb, g_ub, z0, y0, yz0)
+            a["wall"].append((time.perf_counter() - t0) * 1e3)
+            a["cpu"].append((time.process_time() - c0) * 1e3)
+            a["prev"] = res
+            a["conv"] += res.converged
+            a["iters"].append(res.iterations)
+            a["excess"].append(float(fcost(res.z, p)) - f_star)
+            g = np.array(gfun(res.z, p)).ravel()
+            a["viol"].append(max(np.max(g_lb - g, initial=0), np.max(g - g_ub, initial=0),
+                                 np.max(z_lb - res.z, initial=0), np.max(res.z - z_ub, initial=0)))  # fmt: skip
+            a["du0"].append(float(np.max(np.abs(res.z[:2] - z_star[:2]))))
+    out = {}
+    for name in names:
+        a = acc[name]
+        wall, cpu = np.array(a["wall"]), np.array(a["cpu"])
+        out[name] = {
+            "solves": len(wall),
+            "converged": int(a["conv"]),
+            "wall_ms_mean": float(wall.mean()),
+            "wall_ms_p50": float(np.median(wall)),
+            "wall_ms_p99": float(np.percentile(wall, 99)),
+            "wall_ms_max": float(wall.max()),
+            "cpu_ms_mean": float(cpu.mean()),
+            "cpu_ms_p99": float(np.percentile(cpu, 99)),
+            "iterations_mean": float(np.mean(a["iters"])),
+            "cost_excess_mean": float(np.mean(a["excess"])),
+            "cost_excess_max": float(np.max(a["excess"])),
+            "violation_max": float(np.max(a["viol"])),
+            "du0_max": float(np.max(a["du0"])),
+        }
+    return out
 
 
-def mujoco_loops(solver: str, seeds: int) -> dict:
+def mujoco_loops(solvers: list[str], seeds: int) -> dict:
     """The five built-in scenarios x ``seeds`` random initial yaws in MuJoCo (``sanav-mj run``'s
-    harness) with SA-MPC on ``solver``: outcomes and the per-step wall time (``solve_ms``) and
-    CPU time of ``SAMPC.step``."""
+    harness) with SA-MPC on each of ``solvers`` (taking turns episode by episode): outcomes
+    and the per-step wall time (``solve_ms``) and CPU time of ``SAMPC.step``. Returns
+    solver -> statistics."""
     from sanav_mj.eval.episode import initial_pose, prepare, run_scenario
     from sanav_mj.scene import load_scenario
 
-    runs, wall, cpu, turn = [], [], [], []
-    statuses: dict[str, int] = {}
+    acc = {s: {"runs": [], "wall": [], "cpu": [], "turn": [], "statuses": {}} for s in solvers}
     for name in BUILTIN:
         scenario = load_scenario(name)
         for seed in range(seeds):
             start = initial_pose(scenario, seed, None)
             prep = prepare(scenario, start=start)
-            ctl = SAMPC(scenario.robot, prep.areas, prep.plan, MPCConfig(solver=solver))
-            step = ctl.step
+            for solver in solvers:
+                a = acc[solver]
+                ctl = SAMPC(scenario.robot, prep.areas, prep.plan, MPCConfig(solver=solver))
+                step = ctl.step
 
-            def timed(obs, step=step):
-                c0 = time.process_time()
-                cmd = step(obs)
-                cpu.append((time.process_time() - c0) * 1e3)
-                return cmd
+                def timed(obs, step=step, cpu=a["cpu"]):
+                    c0 = time.process_time()
+                    cmd = step(obs)
+                    cpu.append((time.process_time() - c0) * 1e3)
+                    return cmd
 
-            ctl.step = timed
-            ep = run_scenario(prep, "sa-mpc", seed=seed, controller_obj=ctl).episode
-            wall.extend(ep.trace.solve_ms)
-            turn.extend(st == "turn" for st in ep.trace.status)
-            for st in ep.trace.status:
-                statuses[st] = statuses.get(st, 0) + 1
-            runs.append(
-                {"scenario": name, "seed": seed, "success": bool(ep.success), "reason": ep.reason,
-                 "collisions": int(ep.collisions), "fallback_steps": int(ep.solver_failures), "steps": int(ep.steps)}
-            )  # fmt: skip
-    wall, cpu, mpc = np.array(wall), np.array(cpu), ~np.array(turn, dtype=bool)
-    return {
-        "runs": runs,
-        "successes": sum(r["success"] for r in runs),
-        "collisions": sum(r["collisions"] for r in runs),
-        "fallback_steps": sum(r["fallback_steps"] for r in runs),
-        "statuses": statuses,
-        "steps": int(wall.size),
-        "wall_ms_mean": float(wall.mean()),
-        "wall_ms_p50": float(np.median(wall)),
-        "wall_ms_p99": float(np.percentile(wall, 99)),
-        "wall_ms_max": float(wall.max()),
-        "wall_over_5ms": float(np.mean(wall > 5.0)),
-        "cpu_ms_mean": float(cpu.mean()),
-        "cpu_ms_p99": float(np.percentile(cpu, 99)),
-        "cpu_ms_max": float(cpu.max()),
-        # the same without the opening turn's steps (no solve): the MPC steps alone
-        "mpc_steps": int(mpc.sum()),
-        "mpc_wall_ms_mean": float(wall[mpc].mean()),
-        "mpc_wall_ms_p99": float(np.percentile(wall[mpc], 99)),
-        "mpc_cpu_ms_mean": float(cpu[mpc].mean()),
-        "mpc_cpu_ms_p99": float(np.percentile(cpu[mpc], 99)),
-        "load_avg_1min": os.getloadavg()[0],
-    }
+                ctl.step = timed
+                ep = run_scenario(prep, "sa-mpc", seed=seed, controller_obj=ctl).episode
+                a["wall"].extend(ep.trace.solve_ms)
+                a["turn"].extend(st == "turn" for st in ep.trace.status)
+                for st in ep.trace.status:
+                    a["statuses"][st] = a["statuses"].get(st, 0) + 1
+                a["runs"].append(
+                    {"scenario": name, "seed": seed, "success": bool(ep.success), "reason": ep.reason,
+                     "collisions": int(ep.collisions), "fallback_steps": int(ep.solver_failures), "steps": int(ep.steps)}
+                )  # fmt: skip
+    out = {}
+    for solver in solvers:
+        a = acc[solver]
+        runs = a["runs"]
+        wall, cpu, mpc = np.array(a["wall"]), np.array(a["cpu"]), ~np.array(a["turn"], dtype=bool)
+        out[solver] = {
+            "runs": runs,
+            "successes": sum(r["success"] for r in runs),
+            "collisions": sum(r["collisions"] for r in runs),
+            "fallback_steps": sum(r["fallback_steps"] for r in runs),
+            "statuses": a["statuses"],
+            "steps": int(wall.size),
+            "wall_ms_mean": float(wall.mean()),
+            "wall_ms_p50": float(np.median(wall)),
+            "wall_ms_p99": float(np.percentile(wall, 99)),
+            "wall_ms_max": float(wall.max()),
+            "wall_over_5ms": float(np.mean(wall > 5.0)),
+            "cpu_ms_mean": float(cpu.mean()),
+            "cpu_ms_p99": float(np.percentile(cpu, 99)),
+            "cpu_ms_max": float(cpu.max()),
+            # the same without the opening turn's steps (no solve): the MPC steps alone
+            "mpc_steps": int(mpc.sum()),
+            "mpc_wall_ms_mean": float(wall[mpc].mean()),
+            "mpc_wall_ms_p99": float(np.percentile(wall[mpc], 99)),
+            "mpc_cpu_ms_mean": float(cpu[mpc].mean()),
+            "mpc_cpu_ms_p99": float(np.percentile(cpu[mpc], 99)),
+            "load_avg_1min": os.getloadavg()[0],
+        }
+    return out
 
 
 _BUILD_SNIPPET = """
@@ -335,30 +355,33 @@ def main(argv: list[str] | None = None) -> int:
         "horizon": args.horizon, "problems": len(problems), "replay": {}, "closed_loop": {}, "build": {}, "mujoco": {},
         "load_avg_start": os.getloadavg(),
     }  # fmt: skip
+    backends = {s: make_backend(s, ocp, base.replace(solver=s).solver_settings()) for s in args.solvers}
+    replay(backends, ocp, problems[:20], rate_step)  # warm-up (page-in, first calls)
+    results["replay"] = replay(backends, ocp, problems, rate_step)
     for solver in args.solvers:
-        backend = make_backend(solver, ocp, base.replace(solver=solver).solver_settings())
-        replay(backend, ocp, problems[:20], rate_step)  # warm-up (page-in, first calls)
-        results["replay"][solver] = replay(backend, ocp, problems, rate_step)
-        loops = {}
-        for name, (areas, plan, yaw) in cases.items():
+        results["closed_loop"][solver] = {}
+    for name, (areas, plan, yaw) in cases.items():
+        for solver in args.solvers:
             ctl = SAMPC(ROBOT, areas, plan, base.replace(solver=solver))
-            loops[name] = closed_loop(ctl, plan, yaw)
-        results["closed_loop"][solver] = loops
+            results["closed_loop"][solver][name] = closed_loop(ctl, plan, yaw)
+    for solver in args.solvers:
         if not args.no_build and solver in ("panoc", "pantr", "ipopt"):
             results["build"][solver] = build_times(solver, args.horizon)
-        if args.mujoco:
-            results["mujoco"][solver] = mujoco_loops(solver, args.mujoco)
+    if args.mujoco:
+        results["mujoco"] = mujoco_loops(args.solvers, args.mujoco)
     results["load_avg_end"] = os.getloadavg()
 
     ref = results["replay"].get("ipopt")
-    print("\nReplay of the recorded sequence (per solve, Python call included)")
+    print("\nReplay of the recorded sequence (per solve, Python call included; back-ends interleaved)")
     print(f"{'solver':8s} {'wall mean':>9s} {'p50':>6s} {'p99':>6s} {'max':>6s} {'cpu mean':>8s} {'x IPOPT':>7s} "
-          f"{'iters':>6s} {'conv':>5s} {'cost excess mean/max':>22s} {'viol max':>9s} {'|du0| max':>9s}")  # fmt: skip
+          f"{'(cpu)':>6s} {'iters':>6s} {'conv':>5s} {'cost excess mean/max':>22s} {'viol max':>9s} {'|du0| max':>9s}")  # fmt: skip
     for solver, r in results["replay"].items():
         ratio = ref["wall_ms_mean"] / r["wall_ms_mean"] if ref else float("nan")
+        ratio_cpu = ref["cpu_ms_mean"] / r["cpu_ms_mean"] if ref else float("nan")
+        r["ipopt_ratio_wall"], r["ipopt_ratio_cpu"] = ratio, ratio_cpu
         print(
             f"{solver:8s} {r['wall_ms_mean']:9.3f} {r['wall_ms_p50']:6.3f} {r['wall_ms_p99']:6.2f} {r['wall_ms_max']:6.2f} "
-            f"{r['cpu_ms_mean']:8.3f} {ratio:7.1f} {r['iterations_mean']:6.1f} {r['converged']:5d} "
+            f"{r['cpu_ms_mean']:8.3f} {ratio:7.1f} {ratio_cpu:6.1f} {r['iterations_mean']:6.1f} {r['converged']:5d} "
             f"{r['cost_excess_mean']:10.2e}/{r['cost_excess_max']:9.2e} {r['violation_max']:9.1e} {r['du0_max']:9.1e}"
         )
     print("\nClosed loops (controller step incl. Python, tracking error to the reference path)")
@@ -381,7 +404,8 @@ def main(argv: list[str] | None = None) -> int:
     if results["mujoco"]:
         print(f"\nMuJoCo: five built-in scenarios x {args.mujoco} random initial yaws (SAMPC.step per control step)")
         for solver, m in results["mujoco"].items():
-            ratio = results["mujoco"]["ipopt"]["wall_ms_mean"] / m["wall_ms_mean"] if "ipopt" in results["mujoco"] else float("nan")
+            ipopt = results["mujoco"].get("ipopt")
+            ratio = ipopt["wall_ms_mean"] / m["wall_ms_mean"] if ipopt else float("nan")
             print(f"{solver:8s} success {m['successes']}/{len(m['runs'])} collisions {m['collisions']} fallback steps "
                   f"{m['fallback_steps']} | wall mean {m['wall_ms_mean']:.2f} p50 {m['wall_ms_p50']:.2f} p99 "
                   f"{m['wall_ms_p99']:.2f} max {m['wall_ms_max']:.1f} ms ({m['wall_over_5ms'] * 100:.1f} % > 5 ms) | cpu mean "
