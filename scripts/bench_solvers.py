@@ -249,7 +249,7 @@ def mujoco_loops(solvers: list[str], seeds: int) -> dict:
             prep = prepare(scenario, start=start)
             for solver in solvers:
                 a = acc[solver]
-                ctl = SAMPC(scenario.robot, prep.areas, prep.plan, MPCConfig(solver=solver))
+                ctl = SAMPC(scenario.robot, prep.areas, prep.plan, MPCConfig(solver=solver, solve_budget_ms=None))
                 step = ctl.step
 
                 def timed(obs, step=step, cpu=a["cpu"]):
@@ -307,7 +307,7 @@ from bench_solvers import make_case, ROBOT
 from sanav_mj.control.sa_mpc import SAMPC, MPCConfig
 areas, plan = make_case("L")
 t1 = time.perf_counter()
-ctl = SAMPC(ROBOT, areas, plan, MPCConfig(solver={solver!r}, horizon={horizon}))
+ctl = SAMPC(ROBOT, areas, plan, MPCConfig(solver={solver!r}, horizon={horizon}, solve_budget_ms=None))
 t2 = time.perf_counter()
 print(json.dumps({{"imports_s": t1 - t0, "build_s": t2 - t1, "compiled": bool(getattr(ctl.backend, "compiled", False))}}))
 """
@@ -336,7 +336,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, help="write all results to this file")
     args = ap.parse_args(argv)
 
-    base = MPCConfig(horizon=args.horizon)
+    # No wall-clock budget anywhere: every back-end runs to its own convergence (under load a
+    # budget would cut IPOPT's slow solves short and spoil the reference).
+    base = MPCConfig(horizon=args.horizon, solve_budget_ms=None)
     # 1. record the sequence with a tight IPOPT
     problems = []
     cases = {name: (*make_case(name), CORRIDORS[name][3]) for name in CORRIDORS}
