@@ -9,6 +9,10 @@ markers) with the table and the commit, date and machine of the run, read from t
 
     python scripts/reproduce_paper.py --out out/paper --runs 10 --workers 2
     python scripts/reproduce_paper.py --out out/paper --report-only
+    python scripts/reproduce_paper.py --ablation single_rect --runs 10
+
+``--ablation SCENARIO`` instead runs the penalty-MPC baseline with each of its choices
+undone in turn (:data:`ABLATION`, one process, same seeds) and prints a Markdown table.
 
 About 200 runs; 20-40 minutes on two shared cores (the failing baseline runs last until the
 runner declares them stuck, 8 s of simulated time without progress).
@@ -30,6 +34,17 @@ SCENARIOS = ("single_rect", "double_rect", "u_shape", "v_shape", "complex")
 CONTROLLERS = ("mpc", "dqn", "dwa", "sa-mpc")
 ROOT = Path(__file__).resolve().parents[1]
 BEGIN, END = "<!-- reproduced:begin -->", "<!-- reproduced:end -->"
+#: the baseline's choices undone one at a time (``PenaltyConfig`` keywords); the first row is the default
+ABLATION: tuple[tuple[str, dict], ...] = (
+    ("default (lookahead 3 m, escapes, forward only, depth penalty)", {}),
+    ("reference from the robot (lookahead 0)", {"lookahead": 0.0}),
+    ("lookahead 2 m", {"lookahead": 2.0}),
+    ("no escape starts", {"escape_yaw_rates": ()}),
+    ("reversing allowed", {"forward_only": False}),
+    ("product penalty (q_obs 300)", {"form": "product", "q_obs": 300.0}),
+    ("first version: all four undone", {"lookahead": 0.0, "escape_yaw_rates": (), "forward_only": False,
+                                        "form": "product", "q_obs": 300.0}),
+)
 
 
 def _read_rows(path: Path) -> list[dict]:
@@ -78,6 +93,36 @@ def report(out: Path, doc: Path, img: Path) -> str:
     return block
 
 
+def ablation(scenario: str, runs: int) -> str:
+    """Run the penalty-MPC variants of :data:`ABLATION` on ``scenario`` (seeds 0..runs-1); Markdown table."""
+    import numpy as np
+
+    from sanav_mj.control.penalty_mpc import PenaltyConfig, PenaltyMPC
+    from sanav_mj.eval.episode import prepare, run_scenario
+
+    prep = prepare(scenario)
+    sc = prep.scenario
+    lines = ["| variant | success | outcomes | min clearance (m) | solve mean / max (ms) |", "|---|---|---|---|---|"]
+    print("\n".join(lines), flush=True)
+    for label, kwargs in ABLATION:
+        docs = []
+        for seed in range(runs):
+            ctl = PenaltyMPC(sc.robot, sc.obstacles, prep.grid.inflation, sc.goal, penalty=PenaltyConfig(**kwargs))
+            docs.append(run_scenario(prep, controller="mpc", seed=seed, controller_obj=ctl).document)
+        reasons: dict[str, int] = {}
+        for d in docs:
+            reasons[d["reason"]] = reasons.get(d["reason"], 0) + 1
+        steps = np.array([d["steps"] for d in docs], float)
+        mean = float(np.sum([d["solve_ms"]["mean"] * d["steps"] for d in docs]) / max(steps.sum(), 1))
+        lines.append(
+            f"| {label} | {sum(d['success'] for d in docs)}/{runs} | "
+            f"{', '.join(f'{k} {v}' for k, v in sorted(reasons.items()))} | "
+            f"{min(d['min_clearance_m'] for d in docs):.3f} | {mean:.1f} / {max(d['solve_ms']['max'] for d in docs):.0f} |"
+        )
+        print(lines[-1], flush=True)
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=Path("out/paper"), help="bench output folder")
@@ -86,9 +131,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--doc", type=Path, default=ROOT / "docs" / "results.md", help="doc with the generated block")
     ap.add_argument("--img", type=Path, default=ROOT / "docs" / "img" / "results", help="folder of the figure")
     ap.add_argument("--report-only", action="store_true", help="only rebuild the figure and doc block from --out")
+    ap.add_argument("--ablation", metavar="SCENARIO", help="run the penalty-MPC ablation on SCENARIO instead")
     args = ap.parse_args(argv)
     if args.runs < 1 or args.workers < 1:
         ap.error("--runs and --workers must be >= 1")
+    if args.ablation:
+        ablation(args.ablation, args.runs)
+        return 0
     if not args.report_only:
         from sanav_mj.eval.bench import run_bench
 

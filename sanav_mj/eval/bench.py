@@ -139,6 +139,14 @@ def write_csv(rows: list[dict[str, Any]], path: Path, columns: tuple[str, ...] =
             w.writerow(r)
 
 
+def _load_average() -> list[float] | None:
+    """1, 5 and 15 minute load averages of the machine (None where unavailable)."""
+    try:
+        return [round(v, 2) for v in os.getloadavg()]
+    except (AttributeError, OSError):
+        return None
+
+
 def run_metadata(scenarios: Sequence[str], controllers: Sequence[str], runs: int, workers: int,
                  time_limit_s: float) -> dict[str, Any]:
     """What a bench run measured and where: arguments, git commit of the package, machine, versions."""
@@ -183,6 +191,7 @@ def run_metadata(scenarios: Sequence[str], controllers: Sequence[str], runs: int
         "dirty": None if status is None else bool(status),
         "date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "machine": {"cpu": cpu, "logical_cpus": os.cpu_count(), "platform": platform.platform()},
+        "load_average_start": _load_average(),
         "versions": versions,
         "argv": list(sys.argv),
     }
@@ -211,7 +220,8 @@ def run_bench(
     Returns:
         The per (scenario, controller) summary rows (also written to ``table.md``).
 
-    Also writes ``meta.json`` (:func:`run_metadata` plus the wall time of the campaign).
+    Also writes ``meta.json`` (:func:`run_metadata` plus the wall time of the campaign and
+    the load average at its end: the timings are wall times on a possibly shared machine).
     """
     from sanav_mj.eval.plots import plot_success_bars
     from sanav_mj.resources import builtin_scenarios
@@ -234,6 +244,7 @@ def run_bench(
     t0 = time.perf_counter()
     rows = [flatten(d) for d in run_jobs(jobs, workers, desc="bench")]
     meta["wall_time_s"] = time.perf_counter() - t0
+    meta["load_average_end"] = _load_average()
     write_csv(rows, out / "results.csv")
     (out / "meta.json").write_text(json.dumps(meta, indent=1))
     summary = summarise(rows)

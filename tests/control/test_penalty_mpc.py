@@ -198,6 +198,35 @@ def test_blocked_known_answers():
     assert not ctl.blocked(np.array([0.2, 0.0, 0.0]), fast, theta)
 
 
+@pytest.mark.parametrize("err", [2.5, -0.5, 3.1, 0.05])
+def test_turn_plan_turns_by_the_error_within_the_bounds(err):
+    ctl = PenaltyMPC(ROBOT, [], 0.3, np.array([3.0, 0.0]))
+    u = ctl.turn_plan(err)
+    assert u.shape == (ctl.N, 2) and np.all(u[:, 0] == 0.0)
+    steps = np.abs(np.diff(np.vstack(([0.0, 0.0], u)), axis=0))
+    assert np.all(steps[:, 1] <= ctl._rate_step[1] + 1e-12) and np.all(np.abs(u[:, 1]) <= ctl.limits.w_max)
+    assert np.all(np.sign(u[:, 1]) * np.sign(err) >= 0) and u[-1, 1] == 0.0  # one direction, ends at rest
+    assert abs(u[:, 1].sum() * ctl.dt - err) <= ctl._rate_step[1] * ctl.dt  # within one step's turn
+
+
+def test_opening_turn_when_facing_away_then_the_mpc():
+    ctl = PenaltyMPC(ROBOT, [], 0.3, np.array([3.0, 0.0]))
+    x = np.array([0.0, 0.0, 2.0])  # 2 rad off the goal's bearing (> turn_in_place = 1 rad)
+    ctl.reset(x)
+    statuses = []
+    for k in range(30):
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=np.zeros(2)))
+        statuses.append(cmd.status)
+        x = step_np(x, [cmd.v, cmd.w], 0.1)
+    n_turn = statuses.index("ok")
+    assert n_turn > 3 and statuses[:n_turn] == ["turn"] * n_turn and "turn" not in statuses[n_turn:]
+    assert ctl.stats_counts["turn"] == n_turn and ctl.failures == 0
+    assert x[0] > 0.5  # then it drives to the goal
+    # a small heading error at the first step: no opening turn
+    ctl.reset(np.array([0.0, 0.0, 0.5]))
+    assert ctl.step(Observation(t=0.0, pose=np.array([0.0, 0.0, 0.5]), velocity=np.zeros(2))).status != "turn"
+
+
 def test_forward_only_sets_the_lower_speed_bound():
     ctl = PenaltyMPC(ROBOT, [], 0.3, np.array([3.0, 0.0]))
     assert ctl.limits.v_min == 0.0 and ctl._z_lb[0] == 0.0
@@ -248,6 +277,7 @@ def test_fallbacks_are_finite_when_every_solve_fails_or_the_pose_is_nan():
         (dict(escape_speed=-1.0), "escape_speed"),
         (dict(blocked_travel=0.0), "blocked_travel"),
         (dict(min_outer_iter=0), "min_outer_iter"),
+        (dict(escape_budget_ms=0.0), "escape_budget_ms"),
     ],
 )
 def test_config_errors_name_the_field(kwargs, fragment):
