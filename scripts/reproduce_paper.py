@@ -36,14 +36,14 @@ ROOT = Path(__file__).resolve().parents[1]
 BEGIN, END = "<!-- reproduced:begin -->", "<!-- reproduced:end -->"
 #: the baseline's choices undone one at a time (``PenaltyConfig`` keywords); the first row is the default
 ABLATION: tuple[tuple[str, dict], ...] = (
-    ("default (lookahead 3 m, escapes, forward only, depth penalty)", {}),
+    ("default (lookahead 3 m, escape starts, depth penalty)", {}),
     ("reference from the robot (lookahead 0)", {"lookahead": 0.0}),
     ("lookahead 2 m", {"lookahead": 2.0}),
     ("no escape starts", {"escape_yaw_rates": ()}),
-    ("reversing allowed", {"forward_only": False}),
+    ("forward only (v >= 0)", {"forward_only": True}),
     ("product penalty (q_obs 300)", {"form": "product", "q_obs": 300.0}),
-    ("first version: all four undone", {"lookahead": 0.0, "escape_yaw_rates": (), "forward_only": False,
-                                        "form": "product", "q_obs": 300.0}),
+    ("first version: lookahead 0, no escapes, product penalty",
+     {"lookahead": 0.0, "escape_yaw_rates": (), "form": "product", "q_obs": 300.0}),
 )
 
 

@@ -8,7 +8,7 @@ is the formulation the paper compares against (obstacles "incorporated into the 
 formulation through terms in the cost function rather than as hard feasibility
 constraints"); it is expected to get trapped in non-convex scenes (U, V).
 
-Four choices make the baseline pass a convex obstacle that blocks the straight line; the
+These choices make the baseline pass a convex obstacle that blocks the straight line; the
 first version (reference starting at the robot, warm start only, product penalty) stopped in
 front of the block of ``single_rect`` in every run. See :class:`PenaltyConfig` and
 docs/results.md for the measurements behind them:
@@ -24,9 +24,9 @@ docs/results.md for the measurements behind them:
   of the reference's distance) the same problem is also solved from two swerving initial
   guesses (constant yaw rates of either sign) and the plan of lowest cost is kept. The
   problem is unchanged; only the starting points differ (multi-start, no planner).
-- *Forward only.* With the lookahead a robot that starts facing away from the goal
-  prefers to reverse all the way (yaw error is cheap) and then has to turn in front of
-  the obstacle; the baseline drives forward only (``v_min = 0``).
+- *Opening turn.* As SA-MPC, a robot facing more than ``MPCConfig.turn_in_place`` away
+  from the goal first turns on the spot; with the lookahead's pull and cheap yaw error it
+  otherwise reversed all the way to the block.
 - *Penetration depth.* The penalty is the squared penetration depth of the inflated
   polygon (``form="depth"``), equally strong along the whole boundary; the product form
   (the mirror image of J_SA) vanishes to higher order near the vertices, where the plans
@@ -54,6 +54,10 @@ from sanav_mj.control.ocp import (
 from sanav_mj.control.sa_mpc import MPCConfig, get_backend
 from sanav_mj.control.unicycle import rollout_np
 from sanav_mj.scene import Obstacle, RobotParams
+
+#: Symbolic problems and their objective functions by (horizon, dt, penalty structure),
+#: shared by the controllers of a process (they hold no episode state).
+_OCPS: dict[tuple, tuple] = {}
 
 #: [m] slack of the padding rows of the "depth" penalty (never the nearest edge).
 _FAR = 1e6
@@ -198,6 +202,9 @@ class PenaltyConfig:
         lookahead: [m] the reference starts this far ahead of the robot on the straight
             line to the goal (0: at the robot; it never passes the goal).
         forward_only: drive forwards only (``v_min = 0``) instead of the shared ``v_min``.
+            Without the opening turn, a robot facing away from the goal reversed all the way
+            to the block (yaw error is cheap against the lookahead's pull); with it,
+            reversing is harmless (10/10 on ``single_rect`` either way), so off by default.
         escape_yaw_rates: [rad/s] yaw rates of the extra initial guesses tried when the plan
             is blocked (each held for ``escape_steps`` steps, then 0); empty: never.
         escape_steps: steps of the horizon that turn in an escape guess.
@@ -223,7 +230,7 @@ class PenaltyConfig:
     n_edges: int = 8
     reference_speed: float | None = None
     lookahead: float = 3.0
-    forward_only: bool = True
+    forward_only: bool = False
     escape_yaw_rates: tuple[float, ...] = (1.0, -1.0)
     escape_steps: int = 10
     escape_speed: float = 0.3
@@ -273,12 +280,13 @@ class PenaltyMPC:
     goal), with the goal's bearing as yaw (shifted to the measured branch) and zero inputs
     once the reference has reached the goal. The problem is solved from the shifted previous
     plan; when that plan is blocked, also from the escape guesses, keeping the cheapest
-    acceptable plan (:class:`PenaltyConfig`). Rate bounds, failure handling and fallbacks
-    (shift the previous plan, then brake) are those of SA-MPC.
+    acceptable plan (:class:`PenaltyConfig`). The opening turn on the spot (``MPCConfig.
+    turn_in_place`` / ``turn_exit``), rate bounds, failure handling and fallbacks (shift the
+    previous plan, then brake) are those of SA-MPC.
 
     Attributes:
         name: ``"mpc"``. dt: [s]. needs_ranges: False.
-        stats_counts: per-episode status counts (``ok``, ``inexact``, ``fallback_*``) plus
+        stats_counts: per-episode status counts (``ok``, ``inexact``, ``turn``, ``fallback_*``) plus
             ``escape_tried`` (steps that solved from the escape guesses) and ``escape_taken``
             (steps whose plan came from one of them).
         failures: the fallback steps.
@@ -338,8 +346,11 @@ class PenaltyMPC:
             self._slots[i, -1] = penalty.q_obs
             self._centres[i] = o.center
         self._empty_slot = np.concatenate((np.tile(self.penalty.pad_row(), n_edges), [0.0]))
-        self.ocp = build_tracking_ocp(self.N, self.dt, self.penalty, position_constraints=False)
-        self._objective = self.ocp.functions()[0]
+        key = (self.N, self.dt, self.penalty)
+        if key not in _OCPS:  # building the symbolic problem takes about 0.4 s
+            ocp = build_tracking_ocp(self.N, self.dt, self.penalty, position_constraints=False)
+            _OCPS[key] = (ocp, ocp.functions()[0])
+        self.ocp, self._objective = _OCPS[key]
         cache = Path(config.cache_dir) if config.cache_dir else None
         self.backend = get_backend(self.ocp, config.solver, config.solver_settings(), cache)
         escape_settings = replace(config.solver_settings(), budget_ms=penalty.escape_budget_ms)

@@ -228,10 +228,10 @@ def test_opening_turn_when_facing_away_then_the_mpc():
 
 
 def test_forward_only_sets_the_lower_speed_bound():
-    ctl = PenaltyMPC(ROBOT, [], 0.3, np.array([3.0, 0.0]))
-    assert ctl.limits.v_min == 0.0 and ctl._z_lb[0] == 0.0
-    both = PenaltyMPC(ROBOT, [], 0.3, np.array([3.0, 0.0]), MPCConfig(), PenaltyConfig(forward_only=False))
-    assert both.limits.v_min == MPCConfig().limits(ROBOT).v_min < 0
+    shared = PenaltyMPC(ROBOT, [], 0.3, np.array([3.0, 0.0]))
+    assert shared.limits.v_min == MPCConfig().limits(ROBOT).v_min < 0  # default: SA-MPC's bounds
+    fwd = PenaltyMPC(ROBOT, [], 0.3, np.array([3.0, 0.0]), MPCConfig(), PenaltyConfig(forward_only=True))
+    assert fwd.limits.v_min == 0.0 and fwd._z_lb[0] == 0.0
 
 
 def test_injected_failures_fall_back_then_recover():
