@@ -82,14 +82,15 @@ class MPCConfig:
             of the nominal problem, see :class:`SAMPC`).
         box_margin: [m] each stage box is shrunk by this much per side (at most a quarter of
             its width), a margin for model mismatch between samples and the real robot.
-        solver: ``"pantr"`` (default: alpaqa ALM + PANTR, PANOC's trust-region Newton
-            variant, compiled), ``"panoc"`` (alpaqa ALM + PANOC with L-BFGS, compiled: the
-            paper's solver) or ``"ipopt"`` (through CasADi, the reference), see
-            :mod:`sanav_mj.control.ocp`. PANTR is the default for its shorter tail: in
-            MuJoCo (five scenarios x 10 seeds) its 99th-percentile step time was 3.5-4.0 ms
-            against PANOC's 4.5-4.6 ms (CPU), at a 10-15 % higher mean (1.1-1.2 against
-            1.0 ms) and the same success and tracking; PANOC solves the recorded sequence a
-            little faster on average (8.7x against 8.2x IPOPT); see docs/benchmarks.md.
+        solver: ``"zerofpr"`` (default: alpaqa ALM + ZeroFPR with L-BFGS, compiled; PANOC's
+            sibling from the same authors), ``"panoc"`` (alpaqa ALM + PANOC with L-BFGS,
+            compiled: the paper's solver), ``"pantr"`` (alpaqa ALM + PANTR, PANOC's
+            trust-region Newton variant, compiled) or ``"ipopt"`` (through CasADi, the
+            reference), see :mod:`sanav_mj.control.ocp`. ZeroFPR is the default because it
+            was measured fastest with the same success and tracking: in MuJoCo (five
+            scenarios x 10 seeds, CPU) step mean 0.91 ms against 1.03 (PANOC) and 1.10
+            (PANTR), 99th percentile 3.8-4.0 ms against 4.5 and 3.5-3.7; on the recorded
+            sequence 16 % faster than PANOC; see docs/benchmarks.md.
         tol: optimality tolerance of the solver (PANOC: stationarity of the scaled problem;
             1e-3 moves the first input by < 2e-3 m/s against a 1e-9 IPOPT solution and
             saves about a quarter of PANOC's iterations against 1e-4, see docs/benchmarks.md).
@@ -133,7 +134,7 @@ class MPCConfig:
     alpha_max: float | None = None
     terminal_stop: bool = True
     box_margin: float = 0.02
-    solver: str = "pantr"
+    solver: str = "zerofpr"
     tol: float = 1e-3
     constraint_tol: float = 1e-4
     max_iter: int = 300

@@ -15,6 +15,7 @@ from sanav_mj.control.ocp import (
     shift_bound_multipliers,
     shift_inputs,
     shift_multipliers,
+    ZeroFprBackend,
 )
 from sanav_mj.control.sa_mpc import SafeAreaPenalty
 from sanav_mj.control.unicycle import rollout_np
@@ -127,11 +128,12 @@ def _box_problem(ocp):
     return p, z_lb, z_ub, np.concatenate((pos_lb, -rate)), np.concatenate((pos_ub, rate))
 
 
-def test_panoc_and_ipopt_agree_on_a_constrained_problem(tmp_path):
+@pytest.mark.parametrize("backend", [PanocBackend, ZeroFprBackend])
+def test_panoc_and_ipopt_agree_on_a_constrained_problem(tmp_path, backend):
     ocp = build_tracking_ocp(8, 0.1)
     args = _box_problem(ocp)
     z0 = np.zeros(ocp.n_z)
-    panoc = PanocBackend(ocp, SolverSettings(tol=1e-7, constraint_tol=1e-7), tmp_path)
+    panoc = backend(ocp, SolverSettings(tol=1e-7, constraint_tol=1e-7), tmp_path)
     ipopt = IpoptBackend(ocp, SolverSettings(tol=1e-9, constraint_tol=1e-9))
     a = panoc.solve(*args, np.clip(z0, args[1], args[2]))
     b = ipopt.solve(*args, z0)
