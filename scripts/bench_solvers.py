@@ -22,7 +22,7 @@
    scenarios x SEEDS random initial yaws (the harness of ``sanav-mj run``); outcomes and the
    wall (``solve_ms``) and CPU time of every controller step.
 
-Usage: ``python scripts/bench_solvers.py [--solvers panoc pantr ipopt] [--horizon 20] [--mujoco 10]``.
+Usage: ``python scripts/bench_solvers.py [--solvers zerofpr panoc pantr ipopt] [--horizon 20] [--mujoco 10]``.
 """
 
 from __future__ import annotations
@@ -327,7 +327,7 @@ def build_times(solver: str, horizon: int) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--solvers", nargs="+", default=["panoc", "pantr", "ipopt"])
+    ap.add_argument("--solvers", nargs="+", default=["zerofpr", "panoc", "pantr", "ipopt"])
     ap.add_argument("--horizon", type=int, default=20)
     ap.add_argument("--no-build", action="store_true", help="skip the construction-time measurement")
     ap.add_argument("--no-scenarios", action="store_true", help="only the synthetic L and U corridors")
@@ -367,7 +367,7 @@ def main(argv: list[str] | None = None) -> int:
             ctl = SAMPC(ROBOT, areas, plan, base.replace(solver=solver))
             results["closed_loop"][solver][name] = closed_loop(ctl, plan, yaw)
     for solver in args.solvers:
-        if not args.no_build and solver in ("panoc", "pantr", "ipopt"):
+        if not args.no_build:
             results["build"][solver] = build_times(solver, args.horizon)
     if args.mujoco:
         results["mujoco"] = mujoco_loops(args.solvers, args.mujoco)

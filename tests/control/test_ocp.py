@@ -8,6 +8,7 @@ from sanav_mj.control.ocp import (
     IpoptBackend,
     PanocBackend,
     SolverSettings,
+    ZeroFprBackend,
     build_tracking_ocp,
     compile_alpaqa_problem,
     default_cache_dir,
@@ -15,7 +16,6 @@ from sanav_mj.control.ocp import (
     shift_bound_multipliers,
     shift_inputs,
     shift_multipliers,
-    ZeroFprBackend,
 )
 from sanav_mj.control.sa_mpc import SafeAreaPenalty
 from sanav_mj.control.unicycle import rollout_np
