@@ -149,7 +149,8 @@ def _load_average() -> list[float] | None:
 
 def run_metadata(scenarios: Sequence[str], controllers: Sequence[str], runs: int, workers: int,
                  time_limit_s: float) -> dict[str, Any]:
-    """What a bench run measured and where: arguments, git commit of the package, machine, versions."""
+    """What a bench run measured and where: arguments, git commit of the package (and whether
+    ``sanav_mj/``, ``models/`` or ``scenarios/`` had uncommitted changes), machine, load, versions."""
     import casadi
     import mujoco
     import numpy
@@ -161,9 +162,9 @@ def run_metadata(scenarios: Sequence[str], controllers: Sequence[str], runs: int
             out = subprocess.run(["git", "-C", str(pkg), *args], capture_output=True, text=True, timeout=10, check=False)
         except (OSError, subprocess.SubprocessError):
             return None
-        return out.stdout.strip() if out.returncode == 0 else None
+        return out.stdout.rstrip() if out.returncode == 0 else None
 
-    status = git("status", "--porcelain", "--untracked-files=no")
+    status = git("status", "--porcelain", "--untracked-files=no", "--", "sanav_mj", "models", "scenarios")
     cpu = platform.processor() or None
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -188,7 +189,8 @@ def run_metadata(scenarios: Sequence[str], controllers: Sequence[str], runs: int
         "workers": int(workers),
         "time_limit_s": float(time_limit_s),
         "commit": git("rev-parse", "HEAD"),
-        "dirty": None if status is None else bool(status),
+        "dirty": None if status is None else bool(status),  # uncommitted changes in the package / models / scenarios
+        "dirty_files": None if status is None else [line[3:] for line in status.splitlines()],
         "date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "machine": {"cpu": cpu, "logical_cpus": os.cpu_count(), "platform": platform.platform()},
         "load_average_start": _load_average(),
