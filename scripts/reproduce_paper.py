@@ -15,8 +15,8 @@ baseline MPC per scenario (seed 0) to ``docs/img/results/mpc_<scenario>.png``.
 ``--ablation SCENARIO`` instead runs the penalty-MPC baseline with each of its choices
 undone in turn (:data:`ABLATION`, one process, same seeds) and prints a Markdown table.
 
-About 200 runs; 20-40 minutes on two shared cores (the failing baseline runs last until the
-runner declares them stuck, 8 s of simulated time without progress).
+About 200 runs; one to a few minutes on two shared cores (the failing baseline runs last
+until the runner declares them stuck, 8 s of simulated time without progress).
 """
 
 from __future__ import annotations

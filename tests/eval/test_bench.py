@@ -94,7 +94,6 @@ def test_markdown_table_shape():
 
 
 def test_tiny_real_bench_writes_the_three_outputs(tmp_path):
-    pytest.importorskip("torch")
     summary = run_bench(["single_rect"], ["dwa", "dqn"], runs=1, workers=1, out=tmp_path, time_limit_s=20.0)
     assert [(s["scenario"], s["controller"], s["runs"]) for s in summary] == [
         ("single_rect", "dwa", 1), ("single_rect", "dqn", 1)
