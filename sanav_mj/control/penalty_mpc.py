@@ -18,7 +18,8 @@ docs/results.md for the measurements behind them:
   of the obstacle always beats one that swerves (checked with IPOPT from several initial
   guesses at every approach distance on ``single_rect``). With a lookahead, lagging costs
   first order and swerving becomes the better plan once the obstacle enters the horizon
-  (3 m: 10/10 on ``single_rect``; 2 m: 9/10, one near-tie lost at full speed).
+  (3 m; 2 m lost a near-tie at full speed in 1 of 10 ``single_rect`` runs with an earlier
+  back-end).
 - *Escape starts.* A gradient method warm-started from a braking plan stays in that basin,
   so when the plan is blocked (it enters a polygon and covers less than ``blocked_travel``
   of the reference's distance) the same problem is also solved from two swerving initial
@@ -30,7 +31,7 @@ docs/results.md for the measurements behind them:
 - *Penetration depth.* The penalty is the squared penetration depth of the inflated
   polygon (``form="depth"``), equally strong along the whole boundary; the product form
   (the mirror image of J_SA) vanishes to higher order near the vertices, where the plans
-  cut into the polygon (0.15 m at a corner in the kinematic test).
+  cut into the polygon (0.11-0.13 m at a corner in the kinematic test, against 0.05 m).
 """
 
 from __future__ import annotations
@@ -71,8 +72,7 @@ def obstacle_polygon(obstacle: Obstacle, inflation: float, circle_sides: int = 8
     bisectors (the edges pushed out by ``inflation``, the corners cut by the tangents of
     the corner arcs), rows in the order edge, corner, edge, ...; with ``corner_cuts``
     False only the four edges (a rectangle with sharp corners, up to ``0.41 inflation``
-    beyond the inflated box; the penalty, a product over the edges, is quartic in the depth
-    near such a corner and the plans cut it). Cylinders and
+    beyond the inflated box). Cylinders and
     capsules (upright): the regular ``circle_sides``-gon circumscribing the circle of
     radius ``radius + inflation``. Normals have unit length, so ``b - a^T p`` is the
     distance [m] to each edge line.
