@@ -47,7 +47,8 @@ class Mismatch:
         pos_noise: [m] std of Gaussian noise on the measured position.
         yaw_noise: [rad] std of Gaussian noise on the measured yaw.
         jitter: fraction of dt by which each control period varies (uniform).
-        solve_budget_ms: [ms] wall-clock cut-off of the solver; None for no cut-off.
+        solve_budget_ms: [ms] wall-clock cut-off of the solver; None keeps the controller's
+            own setting (SA-MPC: ``MPCConfig.solve_budget_ms``).
     """
 
     wheel_radius: float = 1.0
