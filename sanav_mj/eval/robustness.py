@@ -23,8 +23,8 @@ def parse_sweep(items: list[str]) -> list[tuple[str, list[float]]]:
     """Parse ``["wheel_radius=0.9,1.0,1.1", "friction=0.3,1.0"]`` into keys with their values.
 
     Raises:
-        MismatchError: malformed item, unknown key, repeated key, more than two keys, or a
-            value out of the key's range.
+        MismatchError: malformed item, unknown key, repeated key or value, more than two
+            keys, or a value out of the key's range.
     """
     if not 1 <= len(items) <= 2:
         raise MismatchError(f"--sweep: expected one or two KEY=V1,V2,... items, got {len(items)}")
@@ -32,7 +32,8 @@ def parse_sweep(items: list[str]) -> list[tuple[str, list[float]]]:
     out: list[tuple[str, list[float]]] = []
     for item in items:
         key, sep, raw = item.partition("=")
-        if not sep or not raw:
+        key = key.strip()
+        if not sep or not raw.strip():
             raise MismatchError(f"--sweep {item!r}: expected KEY=V1,V2,...")
         if key not in keys:
             raise MismatchError(f"--sweep {item!r}: unknown key {key!r}; expected one of {', '.join(keys)}")
@@ -42,6 +43,8 @@ def parse_sweep(items: list[str]) -> list[tuple[str, list[float]]]:
             values = [float(v) for v in raw.split(",")]
         except ValueError:
             raise MismatchError(f"--sweep {item!r}: expected comma-separated numbers, got {raw!r}") from None
+        if len(set(values)) != len(values):
+            raise MismatchError(f"--sweep {item!r}: a value is given twice")
         for v in values:
             Mismatch(**{key: int(v) if key == "delay" and v == int(v) else v})  # validates range
         out.append((key, values))

@@ -25,6 +25,7 @@ def test_parse_sweep_known_answers():
     assert parse_sweep(["wheel_radius=0.9,1.0,1.1"]) == [("wheel_radius", [0.9, 1.0, 1.1])]
     assert parse_sweep(["friction=0.3,1", "delay=0,1,2"]) == [("friction", [0.3, 1.0]), ("delay", [0.0, 1.0, 2.0])]
     assert parse_sweep(["pos_noise=0.02"]) == [("pos_noise", [0.02])]
+    assert parse_sweep([" mass =2, 3"]) == [("mass", [2.0, 3.0])]
 
 
 @pytest.mark.parametrize(
@@ -37,6 +38,7 @@ def test_parse_sweep_known_answers():
         (["bogus=1,2"], "unknown key 'bogus'"),
         (["mass=1", "mass=2"], "given twice"),
         (["mass=1,x"], "comma-separated numbers"),
+        (["mass=1,2,1.0"], "a value is given twice"),
         (["mass=1,,2"], "comma-separated numbers"),
         (["wheel_radius=0.9,9"], "expected 0.5 <= value <= 1.5"),
         (["delay=0,1.5"], "whole number"),
