@@ -212,11 +212,16 @@ class PenaltyConfig:
             ``max(previous speed, escape_speed)``).
         blocked_travel: the plan counts as blocked when it enters a polygon and its path is
             shorter than this fraction of the reference's ``N * reference_speed * dt``.
-        escape_budget_ms: [ms] wall-clock limit of each escape solve (None: none). The
-            escape starts are cold starts far from their solution (50-300 ms on a loaded
-            2-core machine); cut at SA-MPC's 50 ms budget (``MPCConfig.solve_budget_ms``,
-            which the warm-started solve keeps), their iterates lost to the braking plan and
-            the baseline stopped in front of the block in 2 of 10 ``single_rect`` runs.
+        escape_budget_ms: [ms] extra wall-clock limit of each escape solve (None: none).
+            Every solve of the controller, escape solves included, respects the shared
+            ``MPCConfig.solve_budget_ms`` (the ``solve_budget_ms`` mismatch); an escape
+            solve is cut at the smaller of the two. A step that tries the escape starts
+            makes ``1 + len(escape_yaw_rates)`` solves, so its wall time can reach that many
+            budgets. The escape starts are cold starts far from their solution: with the
+            ZeroFPR back-end they took 25-33 ms on ``single_rect`` (10 runs, load about 1);
+            with an earlier back-end 50-300 ms on a loaded 2-core machine, where a 50 ms cut
+            made their iterates lose to the braking plan and the baseline stopped in front
+            of the block in 2 of 10 ``single_rect`` runs.
         min_outer_iter: lower bound of the ALM outer-iteration limit of the baseline's solver
             (``max(MPCConfig.max_outer_iter, min_outer_iter)``). Its costs are about ten
             times SA-MPC's (the reference lies ahead of the robot) and cold starts need more
@@ -271,6 +276,13 @@ class PenaltyConfig:
             raise ValueError(f"PenaltyConfig.min_outer_iter must be an integer >= 1, got {mo!r}")
 
 
+def _tighter(a: float | None, b: float | None) -> float | None:
+    """The smaller of two optional limits (None: no limit)."""
+    if a is None:
+        return b
+    return a if b is None else min(a, b)
+
+
 class PenaltyMPC:
     """Obstacle-penalty MPC (the paper's baseline), implementing the Controller protocol.
 
@@ -280,7 +292,8 @@ class PenaltyMPC:
     goal), with the goal's bearing as yaw (shifted to the measured branch) and zero inputs
     once the reference has reached the goal. The problem is solved from the shifted previous
     plan; when that plan is blocked, also from the escape guesses, keeping the cheapest
-    acceptable plan (:class:`PenaltyConfig`). The opening turn on the spot (``MPCConfig.
+    acceptable plan (:class:`PenaltyConfig`). Every solve, escape solves included, stops at
+    ``MPCConfig.solve_budget_ms`` of wall time. The opening turn on the spot (``MPCConfig.
     turn_in_place`` / ``turn_exit``), rate bounds, failure handling and fallbacks (shift the
     previous plan, then brake) are those of SA-MPC.
 
@@ -353,7 +366,9 @@ class PenaltyMPC:
         self.ocp, self._objective = _OCPS[key]
         cache = Path(config.cache_dir) if config.cache_dir else None
         self.backend = get_backend(self.ocp, config.solver, config.solver_settings(), cache)
-        escape_settings = replace(config.solver_settings(), budget_ms=penalty.escape_budget_ms)
+        escape_settings = replace(
+            config.solver_settings(), budget_ms=_tighter(config.solve_budget_ms, penalty.escape_budget_ms)
+        )
         self.escape_backend = get_backend(self.ocp, config.solver, escape_settings, cache)
         n = self.N
         self._z_lb = np.tile(self.limits.lower(), n)

@@ -298,3 +298,48 @@ def test_normalised_rows_scale_by_the_inradius():
     np.testing.assert_allclose(normalised_rows(poly, np.array([1.0, 1.0])), poly / 0.3)
     circle = obstacle_polygon(_cyl(2.0, -1.0, 0.4), 0.1)
     np.testing.assert_allclose(normalised_rows(circle, np.array([2.0, -1.0])), circle / 0.5)
+
+
+class _RecordingBackend:
+    """Wraps a back-end (not shared: the controller's attribute is replaced) and keeps every result."""
+
+    def __init__(self, inner):
+        self.inner = inner
+        self.results = []
+
+    def solve(self, *args, **kwargs):
+        res = self.inner.solve(*args, **kwargs)
+        self.results.append(res)
+        return res
+
+
+@pytest.mark.parametrize("budget_ms, escape_ms, want", [
+    (None, None, None), (50.0, None, 50.0), (None, 5.0, 5.0), (1.0, 5.0, 1.0), (8.0, 5.0, 5.0),
+])
+def test_escape_solves_get_the_tighter_of_the_two_budgets(budget_ms, escape_ms, want):
+    ctl = PenaltyMPC(ROBOT, [], 0.3, np.array([3.0, 0.0]), MPCConfig(solve_budget_ms=budget_ms),
+                     PenaltyConfig(escape_budget_ms=escape_ms))
+    assert ctl.backend.settings.budget_ms == budget_ms
+    assert ctl.escape_backend.settings.budget_ms == want
+
+
+@pytest.mark.parametrize("budget_ms", [None, 1e-3])
+def test_every_solve_respects_a_tiny_solve_budget(budget_ms):
+    # the single_rect situation, close to the box: the plan is blocked, so the escape starts
+    # are solved too. Unbudgeted they converge; with a 1 us budget (the ``solve_budget_ms``
+    # mismatch) every solve, escape solves included, stops at the time limit
+    obs = [_box(2.5, 0.0, 0.0, 0.4, 0.4)]
+    ctl = PenaltyMPC(ROBOT, obs, 0.35, np.array([5.0, 0.0]), MPCConfig(solve_budget_ms=budget_ms))
+    ctl.backend = _RecordingBackend(ctl.backend)
+    ctl.escape_backend = _RecordingBackend(ctl.escape_backend)
+    x = np.array([1.0, 0.0, 0.0])
+    ctl.reset(x)
+    cmd = ctl.step(Observation(t=0.0, pose=x, velocity=np.zeros(2)))
+    assert ctl.stats_counts["escape_tried"] == 1
+    main, escapes = ctl.backend.results, ctl.escape_backend.results
+    assert len(main) == 1 and len(escapes) == len(PenaltyConfig().escape_yaw_rates)
+    if budget_ms is None:
+        assert all(r.converged for r in main + escapes) and cmd.status == "ok"
+    else:
+        assert [r.status for r in main + escapes] == ["MaxTime"] * 3
+        assert cmd.status == "fallback_stop" and (cmd.v, cmd.w) == (0.0, 0.0)
