@@ -1,7 +1,9 @@
 """The ``sanav-mj`` command line (see the design contract for the commands and JSON).
 
 Exit codes: 0 success; 1 a run ended without reaching the goal; 2 bad input (one line on
-stderr naming the file or argument and what is wrong, no traceback).
+stderr naming the file or argument and what is wrong, no traceback), which includes an output
+file or folder that cannot be created or written (``run`` prints its result line and writes
+its other outputs first).
 """
 
 from __future__ import annotations
@@ -50,6 +52,18 @@ def _resolution(text: str) -> float:
     return value
 
 
+#: [s] largest accepted ``--time-limit`` (one simulated day; larger values overflow the step count)
+MAX_TIME_LIMIT_S = 86_400.0
+
+
+def _time_limit(text: str) -> float:
+    value = _float_arg("--time-limit", positive=True)(text)
+    if value > MAX_TIME_LIMIT_S:
+        raise argparse.ArgumentTypeError(
+            f"--time-limit: expected 0 < S <= {MAX_TIME_LIMIT_S:g} simulated seconds, got {text!r}")
+    return value
+
+
 def _count(name: str, lo: int = 1, hi: int = 10_000):
     def parse(text: str) -> int:
         try:
@@ -88,7 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--rrd", type=Path)
     r.add_argument("--plot", type=Path)
     r.add_argument("--mismatch", nargs="+", default=[], metavar="KEY=VALUE")
-    r.add_argument("--time-limit", type=_float_arg("--time-limit", positive=True), default=60.0, help="[s] simulated")
+    r.add_argument("--time-limit", type=_time_limit, default=60.0, help="[s] simulated time limit (default 60)")
 
     b = sub.add_parser("bench", help="the paper's comparison: success rates and timing table")
     b.add_argument("scenarios", nargs="*", help="scenarios (default: all built-in)")
@@ -105,13 +119,42 @@ def build_parser() -> argparse.ArgumentParser:
     rb.add_argument("--seeds", type=_count("--seeds"), default=5)
     rb.add_argument("--controller", choices=CONTROLLERS, default="sa-mpc")
     rb.add_argument("--workers", type=_count("--workers", 1, 64), default=2)
+    rb.add_argument("--fixed", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="mismatch applied at every grid point (keys as --mismatch; not a swept key)")
+    rb.add_argument("--time-limit", type=_time_limit, default=60.0,
+                    help="[s] simulated time limit of each run (default 60)")
     rb.add_argument("--out", type=Path, default=Path("out/robustness"))
     return p
 
 
 def _write_json(path: Path, doc: dict) -> None:
     _prepare_output(path)
-    path.write_text(json.dumps(doc, indent=1, allow_nan=False))
+    text = json.dumps(doc, indent=1, allow_nan=False)
+    try:
+        path.write_text(text)
+    except OSError as exc:
+        raise BadInput(f"{path}: cannot write ({exc.strerror})") from None
+
+
+def _write_outputs(writers: list[tuple[Path | None, object]]) -> None:
+    """Call each ``(path, write)`` whose path is set; one failure does not stop the others.
+
+    Raises:
+        BadInput: naming the first output that could not be written (and how many failed).
+    """
+    failed: list[str] = []
+    for path, write in writers:
+        if path is None:
+            continue
+        try:
+            write()
+        except BadInput as exc:
+            failed.append(str(exc))
+        except OSError as exc:
+            failed.append(f"{path}: cannot write ({exc.strerror or exc})")
+    if failed:
+        more = f" (and {len(failed) - 1} more output(s) not written)" if len(failed) > 1 else ""
+        raise BadInput(failed[0] + more)
 
 
 def _prepare_output(path: Path) -> None:
@@ -121,6 +164,30 @@ def _prepare_output(path: Path) -> None:
         raise BadInput(f"{path}: cannot create the output folder ({exc.strerror})") from None
     if path.exists() and path.is_dir():
         raise BadInput(f"{path}: expected a file path, got a folder")
+
+
+def _check_out_dir(path: Path, name: str = "--out") -> None:
+    """Create the output folder ``path`` (and its parents) or fail with one line naming it."""
+    if path.exists() and not path.is_dir():
+        raise BadInput(f"{name} {path}: expected a folder, got a file")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BadInput(f"{name} {path}: cannot create the folder ({exc.strerror})") from None
+    probe = path / ".sanav-mj-write-test"
+    try:
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise BadInput(f"{name} {path}: cannot write in the folder ({exc.strerror})") from None
+
+
+def _check_scenarios(names: list[str]) -> None:
+    """Load each scenario once (ScenarioError on a bad one) before any output is created."""
+    from sanav_mj.scene import load_scenario
+
+    for name in names:
+        load_scenario(name)
 
 
 def _check_outputs(*paths: Path | None) -> None:
@@ -142,12 +209,13 @@ def _cmd_areas(args) -> int:
     _check_outputs(args.json, args.plot)
     prep = prepare(args.scenario, resolution=args.resolution)
     doc = areas_document(prep)
-    if args.json:
-        _write_json(args.json, doc)
-    if args.plot:
+
+    def plot() -> None:
         from sanav_mj.eval.plots import plot_areas
 
         plot_areas(prep, args.plot)
+
+    _write_outputs([(args.json, lambda: _write_json(args.json, doc)), (args.plot, plot)])
     t = doc["timing_ms"]
     print(
         f"{doc['scenario']}: grid {doc['grid']['shape'][1]}x{doc['grid']['shape'][0]} @ {doc['grid']['resolution']} m, "
@@ -163,39 +231,57 @@ def _cmd_run(args) -> int:
 
     mismatch = parse_mismatch(args.mismatch)
     _check_outputs(args.json, args.rrd, args.plot)
-    out = run_scenario(
-        args.scenario,
-        controller=args.controller,
-        seed=args.seed,
-        yaw=args.yaw,
-        resolution=args.resolution,
-        mismatch=mismatch,
-        time_limit_s=args.time_limit,
-        rrd=args.rrd,
-    )
+    try:
+        out = run_scenario(
+            args.scenario,
+            controller=args.controller,
+            seed=args.seed,
+            yaw=args.yaw,
+            resolution=args.resolution,
+            mismatch=mismatch,
+            time_limit_s=args.time_limit,
+            rrd=args.rrd,
+        )
+    except RuntimeError as exc:
+        if args.rrd is None or not _raised_in_rerun(exc):
+            raise
+        first = (str(exc).strip().splitlines() or ["no message"])[0]
+        raise BadInput(f"{args.rrd}: cannot write the recording ({first})") from None
     doc = out.document
-    if args.json:
-        _write_json(args.json, doc)
-    if args.plot:
+
+    def plot() -> None:
         from sanav_mj.eval.plots import plot_run
 
         plot_run(out, args.plot)
+
+    try:  # the result line first: a failing output file must not lose it
+        _print_run_line(doc)
+    finally:
+        _write_outputs([(args.json, lambda: _write_json(args.json, doc)), (args.plot, plot)])
+    return 0 if doc["success"] else 1
+
+
+def _raised_in_rerun(exc: BaseException) -> bool:
+    """Whether ``exc`` was raised by the rerun SDK (its innermost frame is in the package)."""
+    tb = exc.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    return tb is not None and "/rerun/" in tb.tb_frame.f_code.co_filename.replace("\\", "/")
+
+
+def _print_run_line(doc: dict) -> None:
     print(
         f"{doc['scenario']} / {doc['controller']} seed {doc['seed']}: {doc['reason']} after {doc['steps']} steps "
         f"({doc['sim_time_s']:.1f} s), path {doc['path_length_m']:.2f} m, min clearance "
         f"{doc['min_clearance_m']:.3f} m, collisions {doc['collisions']}, solve {doc['solve_ms']['mean']:.2f} ms mean "
         f"/ {doc['solve_ms']['p99']:.2f} ms p99"
     )
-    return 0 if doc["success"] else 1
 
 
 def _cmd_demo(args) -> int:
     from sanav_mj.eval.demo import run_demo, summary_table
 
-    try:
-        args.out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise BadInput(f"--out {args.out}: cannot create the folder ({exc.strerror})") from None
+    _check_out_dir(args.out)
     rows = run_demo(args.out, record=not args.no_rrd)
     print(summary_table(rows), end="")
     print(f"wrote recordings (.rrd), plots (.png) and JSON to {args.out}/")
@@ -205,17 +291,40 @@ def _cmd_demo(args) -> int:
 def _cmd_bench(args) -> int:
     from sanav_mj.eval.bench import markdown_table, run_bench
 
+    _check_scenarios(args.scenarios)
+    _check_out_dir(args.out)
     summary = run_bench(args.scenarios, args.controllers, args.runs, args.workers, args.out, record=args.rrd)
     print(markdown_table(summary), end="")
     print(f"wrote {args.out}/results.csv, table.md, success.png")
     return 0
 
 
+def _parse_fixed(items: list[str], sweep: list[tuple[str, list[float]]]):
+    """``--fixed`` items as a :class:`~sanav_mj.sim.mismatch.Mismatch`; errors name ``--fixed``."""
+    from sanav_mj.sim.mismatch import MismatchError, parse_mismatch
+
+    try:
+        fixed = parse_mismatch(items)
+    except MismatchError as exc:
+        text = str(exc)
+        text = "--fixed " + text[len("--mismatch "):] if text.startswith("--mismatch ") else f"--fixed: {text}"
+        raise BadInput(text) from None
+    given = {item.partition("=")[0].strip(): item for item in items}
+    for key, _ in sweep:
+        if key in given:
+            raise BadInput(f"--fixed {given[key]!r}: key {key!r} is also swept (--sweep); a key is either swept or fixed")
+    return fixed
+
+
 def _cmd_robustness(args) -> int:
     from sanav_mj.eval.robustness import parse_sweep, run_robustness
 
     sweep = parse_sweep(args.sweep)
-    summary = run_robustness(args.scenarios, sweep, args.seeds, args.controller, args.workers, args.out)
+    fixed = _parse_fixed(args.fixed, sweep)
+    _check_scenarios(args.scenarios)
+    _check_out_dir(args.out)
+    summary = run_robustness(args.scenarios, sweep, args.seeds, args.controller, args.workers, args.out,
+                             time_limit_s=args.time_limit, fixed=fixed)
     for row in summary:
         print("  ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
     print(f"wrote {args.out}/robustness.csv, summary.csv and heat maps")
@@ -239,6 +348,10 @@ def main(argv: list[str] | None = None) -> int:
         return handler(args)
     except (BadInput, ScenarioError, MismatchError) as exc:
         print(f"sanav-mj: error: {_one_line(str(exc))}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # an output (or input) file that cannot be written or read mid-way
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"sanav-mj: error: {where}{_one_line(exc.strerror or str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("sanav-mj: interrupted", file=sys.stderr)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -38,6 +39,20 @@ BAD = [
     (["robustness", "u_shape", "--sweep", "friction=0.3", "track=1", "mass=1"], "one or two"),
     (["robustness", "u_shape", "--sweep", "friction=0.3", "friction=0.5"], "given twice"),
     (["robustness", "u_shape", "--sweep", "friction=9"], "friction"),
+    (["robustness", "u_shape", "--fixed", "bogus=1"], "--fixed 'bogus=1': unknown key 'bogus'"),
+    (["robustness", "u_shape", "--fixed", "friction=9"], "--fixed: mismatch friction"),
+    (["robustness", "u_shape", "--fixed", "delay"], "--fixed 'delay': expected KEY=VALUE"),
+    (["robustness", "u_shape", "--fixed", "delay=1", "delay=2"], "--fixed 'delay=2': key 'delay' given twice"),
+    (["robustness", "u_shape", "--fixed"], "--fixed"),
+    (["robustness", "u_shape", "--sweep", "friction=0.3,1", "--fixed", "friction=0.5"],
+     "--fixed 'friction=0.5': key 'friction' is also swept"),
+    (["robustness", "u_shape", "--sweep", "delay=0,1", "--fixed", "delay=0"], "key 'delay' is also swept"),
+    (["robustness", "u_shape", "--time-limit", "0"], "--time-limit"),
+    (["robustness", "u_shape", "--time-limit", "soon"], "--time-limit"),
+    (["robustness", "u_shape", "--time-limit", "inf"], "--time-limit"),
+    (["robustness", "u_shape", "--time-limit", "1e308"], "--time-limit: expected 0 < S <= 86400"),
+    (["robustness", "no_such_scenario"], "no_such_scenario"),
+    (["run", "u_shape", "--time-limit", "1e308"], "--time-limit"),
     (["frobnicate"], "invalid choice"),
     ([], "required"),
 ]
@@ -93,3 +108,120 @@ def test_console_script_module_entry():
     proc = subprocess.run([sys.executable, "-m", "sanav_mj.cli", "run", "nope"], capture_output=True, text=True)
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+
+
+def _fake_doc(job):
+    """A run document (no simulation): success unless the run has a delay."""
+    mismatch = dict(item.split("=") for item in job.mismatch)
+    stats = {"mean": 1.0, "max": 2.0, "std": 0.5, "p50": 1.0, "p99": 2.0}
+    return {
+        "scenario": job.scenario, "controller": job.controller, "seed": job.seed,
+        "success": "delay" not in mismatch, "reason": "goal" if "delay" not in mismatch else "stuck",
+        "steps": 10, "sim_time_s": 1.0, "path_length_m": 1.0, "min_clearance_m": 0.2, "collisions": 0,
+        "safe_area_violations": 0, "solve_ms": stats, "pipeline_ms": stats, "mismatch": mismatch,
+        **dict(job.tags),
+    }
+
+
+def test_robustness_fixed_and_time_limit_reach_every_run(tmp_path, capsys, monkeypatch):
+    from sanav_mj.eval import robustness
+
+    seen = []
+
+    def fake_run_jobs(jobs, workers, desc):
+        seen.extend(jobs)
+        return [_fake_doc(j) for j in jobs]
+
+    monkeypatch.setattr(robustness, "run_jobs", fake_run_jobs)
+    out = tmp_path / "rb"
+    code, stdout, err = _run(["robustness", "single_rect", "--sweep", "wheel_radius=0.9,1.1", "--seeds", "2",
+                              "--fixed", "friction=0.3", "delay=1", "--time-limit", "12.5", "--out", str(out)], capsys)
+    assert code == 0, err
+    assert len(seen) == 4
+    assert {j.mismatch for j in seen} == {("wheel_radius=0.9", "friction=0.3", "delay=1"),
+                                          ("wheel_radius=1.1", "friction=0.3", "delay=1")}
+    assert {j.time_limit_s for j in seen} == {12.5}
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["fixed"] == {"friction": 0.3, "delay": 1}
+    assert meta["sweep"] == {"wheel_radius": [0.9, 1.1]}
+    assert meta["time_limit_s"] == 12.5 and meta["runs"] == 2 and meta["controllers"] == ["sa-mpc"]
+    assert "wrote" in stdout and "success_rate=0" in stdout
+
+
+def test_robustness_defaults_without_fixed(tmp_path, capsys, monkeypatch):
+    from sanav_mj.eval import robustness
+
+    seen = []
+    monkeypatch.setattr(robustness, "run_jobs", lambda jobs, workers, desc: seen.extend(jobs) or
+                        [_fake_doc(j) for j in jobs])
+    code, _, err = _run(["robustness", "single_rect", "--seeds", "1", "--out", str(tmp_path / "rb")], capsys)
+    assert code == 0, err
+    assert {j.time_limit_s for j in seen} == {60.0}
+    assert {j.mismatch for j in seen} == {("wheel_radius=0.9",), ("wheel_radius=1.0",), ("wheel_radius=1.1",)}
+    assert json.loads((tmp_path / "rb" / "meta.json").read_text())["fixed"] == {}
+
+
+@pytest.mark.parametrize("command", [["robustness", "single_rect", "--seeds", "1"],
+                                     ["bench", "single_rect", "--runs", "1", "--controllers", "dwa"],
+                                     ["demo", "--no-rrd"]])
+def test_out_folder_that_is_a_file_or_under_one(tmp_path, capsys, command):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    for out, fragment in ((blocker, "expected a folder, got a file"), (blocker / "sub", "cannot create the folder")):
+        code, _, err = _run(command + ["--out", str(out)], capsys)
+        assert code == 2, err
+        assert err.count("\n") == 1 and "Traceback" not in err
+        assert f"--out {out}: {fragment}" in err
+    assert blocker.read_text() == "x"
+
+
+def test_bad_scenario_creates_no_out_folder(tmp_path, capsys):
+    for command in (["robustness", "nowhere.xml"], ["bench", "nowhere.xml"]):
+        code, _, err = _run(command + ["--out", str(tmp_path / "o")], capsys)
+        assert code == 2 and "nowhere.xml" in err
+        assert not (tmp_path / "o").exists()
+
+
+needs_dev_full = pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (a device that is always full)")
+
+
+@needs_dev_full
+def test_areas_output_that_fails_to_write_is_one_line_and_the_other_output_is_kept(tmp_path, capsys):
+    png = tmp_path / "a.png"
+    code, _, err = _run(["areas", "single_rect", "--json", "/dev/full", "--plot", str(png)], capsys)
+    assert code == 2
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert "/dev/full: cannot write" in err
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@needs_dev_full
+def test_run_result_is_printed_and_kept_when_an_output_fails(tmp_path, capsys):
+    js = tmp_path / "r.json"
+    code, out, err = _run(["run", "single_rect", "--controller", "dwa", "--time-limit", "0.5",
+                           "--json", str(js), "--plot", "/dev/full"], capsys)
+    assert code == 2
+    assert err.count("\n") == 1 and "/dev/full: cannot write" in err and "Traceback" not in err
+    assert "single_rect / dwa seed 0: timeout" in out  # the result line is not lost
+    assert json.loads(js.read_text())["reason"] == "timeout"
+
+
+def test_an_os_error_mid_way_is_one_line(tmp_path, monkeypatch, capsys):
+    from sanav_mj.eval import demo
+
+    def full_disk(out, record):
+        raise OSError(28, "No space left on device", "out/demo/u_shape.json")
+
+    monkeypatch.setattr(demo, "run_demo", full_disk)
+    code, _, err = _run(["demo", "--no-rrd", "--out", str(tmp_path)], capsys)
+    assert code == 2
+    assert err == "sanav-mj: error: out/demo/u_shape.json: No space left on device\n"
+
+
+@needs_dev_full
+def test_recording_that_cannot_be_written_is_one_line(capsys):
+    code, _, err = _run(["run", "single_rect", "--controller", "dwa", "--time-limit", "0.5", "--rrd", "/dev/full"],
+                        capsys)
+    assert code == 2
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert "/dev/full: cannot write the recording" in err

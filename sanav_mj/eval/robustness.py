@@ -1,20 +1,25 @@
 """``sanav-mj robustness``: sweep one or two mismatch keys over a grid with several seeds.
 
-Outputs in ``--out``: ``robustness.csv`` (one row per run, with the swept values),
-``summary.csv`` (one row per grid point: success rate, collision rate, min clearance, reasons)
-and heat maps ``success_rate.png``, ``collision_rate.png``, ``min_clearance.png``.
+Outputs in ``--out``: ``robustness.csv`` (one row per run, with the swept values and the
+run's whole mismatch, fixed keys included), ``summary.csv`` (one row per grid point: success
+rate, collision rate, min clearance, reasons), heat maps ``success_rate.png``,
+``collision_rate.png``, ``min_clearance.png`` (titled with the fixed mismatch) and
+``meta.json``: what the folder ran under (scenarios, controller, seeds, time limit, the
+sweep, the fixed mismatch, commit, machine, load, wall time; see :func:`run_robustness`).
 """
 
 from __future__ import annotations
 
 import csv
+import json
 import math
+import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from sanav_mj.eval.bench import CSV_COLUMNS, flatten, write_csv
+from sanav_mj.eval.bench import CSV_COLUMNS, _load_average, flatten, run_metadata, write_csv
 from sanav_mj.eval.campaign import Job, run_jobs
 from sanav_mj.sim.mismatch import Mismatch, MismatchError, mismatch_keys
 
@@ -82,6 +87,12 @@ def run_robustness(
     Returns:
         One summary row per grid point.
 
+    Also writes ``meta.json``: :func:`sanav_mj.eval.bench.run_metadata` (scenarios,
+    ``controllers`` = [controller], ``runs`` = seeds, workers, ``time_limit_s``, commit,
+    machine, versions, load) plus ``sweep`` ({key: [values]}), ``fixed`` ({key: value},
+    the keys of ``fixed`` that differ from no mismatch), ``wall_time_s`` and
+    ``load_average_end``.
+
     Raises:
         MismatchError: ``fixed`` sets a swept key.
     """
@@ -105,7 +116,16 @@ def run_robustness(
                 for k in range(seeds):
                     jobs.append(Job(s, controller, k, tuple(items), time_limit_s, None,
                                     ((xk, x),) + (((yk, y),) if yk else ()) + (("_cell", (yi, xi)),)))
+    meta = run_metadata(scenarios, [controller], seeds, workers, time_limit_s)
+    meta["sweep"] = {k: [float(v) for v in vals] for k, vals in sweep}
+    meta["fixed"] = dict(base)
+    meta["wall_time_s"] = None  # written before the runs too, so an interrupted folder says what it ran
+    (out / "meta.json").write_text(json.dumps(meta, indent=1))
+    t0 = time.perf_counter()
     docs = run_jobs(jobs, workers, desc="robustness")
+    meta["wall_time_s"] = time.perf_counter() - t0
+    meta["load_average_end"] = _load_average()
+    (out / "meta.json").write_text(json.dumps(meta, indent=1))
     rows = []
     for d in docs:
         r = flatten(d)

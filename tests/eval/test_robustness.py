@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 import math
 
 import numpy as np
@@ -131,7 +132,16 @@ def test_two_key_aggregation_known_answers(tmp_path, monkeypatch):
     assert by_cell[(1.0, 0.0)]["min_clearance_m"] == pytest.approx(0.1)
     assert by_cell[(2.0, 0.0)]["min_clearance_m"] == pytest.approx(0.2)
     assert by_cell[(2.0, 1.0)]["min_clearance_m"] == pytest.approx(-0.01)
-    assert len(_read(out / "robustness.csv")) == 12
+    runs = _read(out / "robustness.csv")
+    assert len(runs) == 12
+    # the folder says what it ran under: each run's whole mismatch, and meta.json
+    assert {r["mismatch"] for r in runs} == {f"mass={m} delay={d} friction=0.5"
+                                              for m in ("1.0", "2.0") for d in ("0", "1")}
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["fixed"] == {"friction": 0.5}
+    assert meta["sweep"] == {"mass": [1.0, 2.0], "delay": [0.0, 1.0]}
+    assert meta["scenarios"] == ["single_rect"] and meta["controllers"] == ["sa-mpc"]
+    assert meta["runs"] == 3 and meta["time_limit_s"] == 60.0 and meta["wall_time_s"] >= 0.0
     assert [(float(c["mass"]), float(c["delay"])) for c in _read(out / "summary.csv")] == [
         (1.0, 0.0), (2.0, 0.0), (1.0, 1.0), (2.0, 1.0)]
     _assert_pngs(out)
