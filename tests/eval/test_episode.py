@@ -122,3 +122,69 @@ def test_walled_off_goal_is_no_path(tmp_path):
     assert out.document["reason"] == "no_path" and not out.document["success"]
     assert out.document["steps"] == 0 and out.document["collisions"] == 0
     json.dumps(out.document, allow_nan=False)
+
+
+# --------------------------------------------------------------------------- planner_config
+
+
+def _robot(**kw):
+    from sanav_mj.scene import RobotParams
+
+    values = dict(wheel_radius=0.1, track=0.4, footprint_radius=0.3, wheel_speed_max=20.0, v_max=2.0,
+                  w_max=10.0, a_max=1.0, alpha_max=3.0)
+    values.update(kw)
+    return RobotParams(**values)
+
+
+def test_planner_config_known_answers_by_hand():
+    from sanav_mj.eval.episode import planner_config
+
+    # rim speed 20 rad/s * 0.1 m = 2 m/s, half track 0.2 m: the MPC's w_max = min(10, 0.4 * 2 / 0.2)
+    # = 4 rad/s, v_max = min(2, 2 - 4 * 0.2) = 1.2 m/s, a_max = the robot's 1 m/s^2
+    cfg = planner_config(_robot())
+    assert cfg.dt == 0.1
+    assert cfg.speed_fraction == pytest.approx(0.8 * 1.2 / 2.0, abs=1e-12)  # 0.48: 0.96 m/s
+    assert cfg.yaw_rate_fraction == pytest.approx(0.8 * 4.0 / 10.0, abs=1e-12)  # 0.32: 3.2 rad/s
+    assert cfg.accel_fraction == pytest.approx(0.8, abs=1e-12)
+
+
+def test_planner_config_of_the_mujoco_robot():
+    from sanav_mj.eval.episode import planner_config
+    from sanav_mj.planning import PlannerConfig
+    from sanav_mj.scene import load_scenario
+
+    robot = load_scenario("single_rect").robot  # r 0.1 m, track 0.38 m, 20 rad/s, v_max 2 m/s, w_max 3 rad/s
+    cfg = planner_config(robot)
+    # the MPC drives at most 2 - 3 * 0.19 = 1.43 m/s: the reference tops out at 0.8 * 1.43 m/s, not 1.6 m/s
+    assert cfg.speed_fraction * robot.v_max == pytest.approx(0.8 * 1.43, abs=1e-12)
+    assert cfg.yaw_rate_fraction == pytest.approx(0.8, abs=1e-12)  # w_max 3 rad/s is the robot's own
+    assert cfg.accel_fraction == pytest.approx(0.8, abs=1e-12)
+    # everything else is the planner's default
+    base = PlannerConfig()
+    changed = {"dt", "speed_fraction", "yaw_rate_fraction", "accel_fraction"}
+    for name in set(vars(base)) - changed:
+        assert getattr(cfg, name) == getattr(base, name), name
+
+
+def test_planner_config_fractions_are_capped_at_one(monkeypatch):
+    from functools import partial
+
+    from sanav_mj.control import sa_mpc
+    from sanav_mj.eval.episode import planner_config
+
+    # an MPC allowed 10 m/s^2 on a 1 m/s^2 robot: 0.8 * 10 / 1 = 8 -> the robot's whole a_max
+    monkeypatch.setattr(sa_mpc, "MPCConfig", partial(sa_mpc.MPCConfig, a_max=10.0, dt=0.05))
+    cfg = planner_config(_robot())
+    assert cfg.accel_fraction == 1.0
+    assert cfg.dt == 0.05
+
+
+def test_planned_reference_respects_the_mpc_bounds(u_shape):
+    from sanav_mj.control.sa_mpc import MPCConfig
+
+    lim = MPCConfig().limits(u_shape.scenario.robot)
+    ref = u_shape.plan.reference
+    assert ref.dt == MPCConfig().dt
+    v = np.asarray(ref.inputs, dtype=float)[:, 0]
+    assert v.max() == pytest.approx(0.8 * lim.v_max, rel=1e-3)  # reaches the cap on the long legs
+    assert np.abs(np.asarray(ref.inputs)[:, 1]).max() <= 0.8 * lim.w_max + 1e-9
