@@ -22,6 +22,7 @@ import casadi as cs
 import numpy as np
 
 from sanav_mj.control.base import Command, Observation
+from sanav_mj.control.monitor import ActuationMonitor, MonitorConfig
 from sanav_mj.control.ocp import (
     BACKENDS,
     Backend,
@@ -139,8 +140,14 @@ class MPCConfig:
     constraint_tol: float = 1e-4
     max_iter: int = 300
     max_outer_iter: int = 20
-    solve_budget_ms: float | None = 50.0
+    solve_budget_ms: float | None = None
     accept_inexact: bool = True
+    latency_compensation: bool = True
+    gain_compensation: bool = False
+    monitor: MonitorConfig = MonitorConfig()
+    excursion_stop: float | None = 0.15
+    derate_floor: float = 0.25
+    fallback_brake: bool = True
     turn_in_place: float | None = 1.0
     turn_exit: float = 0.3
     reference_window: int | None = None
@@ -176,6 +183,11 @@ class MPCConfig:
             raise ValueError(
                 f"MPCConfig.turn_exit must be below turn_in_place ({self.turn_in_place!r} rad), got {self.turn_exit!r}"
             )
+        if not isinstance(self.monitor, MonitorConfig):
+            raise ValueError(f"MPCConfig.monitor must be a MonitorConfig, got {self.monitor!r}")
+        _positive("excursion_stop", self.excursion_stop, allow_none=True)
+        if not (isinstance(self.derate_floor, (int, float)) and 0 <= self.derate_floor <= 1):
+            raise ValueError(f"MPCConfig.derate_floor must be in [0, 1], got {self.derate_floor!r}")
         if self.reference_window is not None and not (
             isinstance(self.reference_window, int) and self.reference_window >= 1
         ):
@@ -550,12 +562,13 @@ def _resample(ref: Reference, dt: float) -> tuple[np.ndarray, np.ndarray, np.nda
 
 @dataclass
 class _Plan:
-    """The active input plan: inputs (N, 2), the next index to apply, multipliers to reuse."""
+    """The active input plan: inputs (N, 2), the next index to apply, multipliers to reuse, braking or not."""
 
     u: np.ndarray
     next: int
     y: np.ndarray | None = None
     y_z: np.ndarray | None = None
+    brake: bool = False
 
 
 @dataclass(frozen=True)
@@ -759,6 +772,7 @@ class SAMPC:
         pos = {int(a): 2 * i for i, a in enumerate(np.asarray(plan.corridor, int))}
         self._ref_chain = np.array([pos.get(int(a), -1) for a in ref_area], dtype=int)
         self.failure_injector = failure_injector
+        self.monitor = ActuationMonitor(config.monitor)
         n = config.horizon
         self.N = n
         self.penalty = SafeAreaPenalty(len(config.q_sa))
@@ -797,6 +811,7 @@ class SAMPC:
         """Start a new episode at ``pose`` (3,) [m, m, rad]; the robot is assumed at rest."""
         pose = np.asarray(pose, dtype=float).reshape(3)
         self._u_prev = np.zeros(2)
+        self.monitor.reset()
         self._active: _Plan | None = None
         self._s_prev: np.ndarray | None = None
         self._step_index = 0
@@ -879,16 +894,20 @@ class SAMPC:
         cand[max(0, anchor - 2) : min(L, anchor + 3)] = True
         return cand
 
-    def _relaxed_boxes(self, boxes: np.ndarray, p0: np.ndarray) -> np.ndarray:
-        """Widen each side of the boxes of stages 1..N by how far p0 lies beyond that side of the stage-0 box."""
+    def _relaxed_boxes(self, boxes: np.ndarray, p0: np.ndarray) -> tuple[np.ndarray, float]:
+        """Widen each side of the boxes of stages 1..N by how far p0 lies beyond that side of the stage-0 box.
+
+        Returns the boxes (N+1, 4) [m] and the excursion [m]: the distance of ``p0`` (2,)
+        outside the stage-0 box (0 inside).
+        """
         below = np.maximum(boxes[0, :2] - p0, 0.0)
         above = np.maximum(p0 - boxes[0, 2:], 0.0)
         if not (below.any() or above.any()):
-            return boxes
+            return boxes, 0.0
         out = boxes.copy()
         out[1:, :2] -= below
         out[1:, 2:] += above
-        return out
+        return out, float(np.hypot(*(below + above)))
 
     def _sa_params(self, s: np.ndarray) -> np.ndarray:
         """J_SA slot parameters (6 * slots,): the distinct safe areas of members s(0)..s(N), in order."""
@@ -969,15 +988,16 @@ class SAMPC:
         u = self._turn_plan(err)
         xs = rollout_np(x0, u, self.dt)
         s = assign_stages(self.chain, xs[:, :2], self._first_candidates(), tol=self._check_tol)
-        boxes = self._relaxed_boxes(stage_boxes(self.chain, s), x0[:2])
+        boxes, _ = self._relaxed_boxes(stage_boxes(self.chain, s), x0[:2])
         self._active = _Plan(u, 1)
         self._s_prev = s
         self._u_prev = u[0].copy()
         self._count("turn")
         margins = np.concatenate(([box_slack(x0[None, :2], boxes[:1])[0]], box_slack(xs[1:, :2], boxes[1:])))
+        v, w = self._send(u[0])
         return Command(
-            v=0.0,
-            w=float(u[0, 1]),
+            v=v,
+            w=w,
             solve_ms=(time.perf_counter() - t0) * 1e3,
             status="turn",
             ok=True,
@@ -985,6 +1005,85 @@ class SAMPC:
             rect_ids=self._rect_ids(s, xs[:, :2]),
             margins=margins,
         )
+
+    # ---------------------------------------------------------------- mismatch handling
+
+    def effective_state(self, pose: np.ndarray) -> np.ndarray:
+        """(3,) state at the instant the next command takes effect, from the measured ``pose`` (3,).
+
+        With latency compensation and an identified delay of ``d`` steps, the measured pose is
+        rolled forward through the ``d`` commands already sent and not yet applied, scaled by
+        the identified gains (see "Latency compensation" in the class doc); else ``pose``.
+        """
+        if not self.config.latency_compensation or self.monitor.delay == 0:
+            return pose
+        pending = self.monitor.pending() * self.monitor.gains
+        return rollout_np(pose, pending, self.dt)[-1]
+
+    def _send(self, u: np.ndarray) -> tuple[float, float]:
+        """The command (v, w) sent for the planned (true) input ``u`` (2,); recorded in the monitor."""
+        cmd = np.asarray(u, dtype=float).copy()
+        if self.config.gain_compensation:
+            cmd = cmd / self.monitor.gains
+        cmd = np.clip(np.nan_to_num(cmd), self.limits.lower(), self.limits.upper())
+        self.monitor.record(cmd)
+        return float(cmd[0]), float(cmd[1])
+
+    def speed_cap(self, excursion: float) -> float:
+        """[m/s] speed bound for a position ``excursion`` [m] outside its stage box.
+
+        ``v_max max(derate_floor, 1 - excursion / excursion_stop)``: the further the robot
+        has drifted out of its box, the slower it may go (see "Measured position outside its
+        box" in the class doc).
+        """
+        stop = self.config.excursion_stop
+        if stop is None or excursion <= 0:
+            return self.limits.v_max
+        return self.limits.v_max * max(self.config.derate_floor, 1.0 - excursion / stop)
+
+    def _union_slack(self, points: np.ndarray) -> np.ndarray:
+        """(P,) [m] largest slack of each point (P, 2) over the corridor chain's members (negative: outside all)."""
+        b = self.chain.boxes
+        sl = np.minimum(
+            np.minimum(points[:, None, 0] - b[None, :, 0], b[None, :, 2] - points[:, None, 0]),
+            np.minimum(points[:, None, 1] - b[None, :, 1], b[None, :, 3] - points[:, None, 1]),
+        )
+        return sl.max(axis=1)
+
+    def brake_plan(self, x0: np.ndarray) -> np.ndarray:
+        """(N, 2) inputs braking at the rate limits, steering to stay inside the corridor.
+
+        The speed goes to zero at the rate bound from the previous input. The yaw rate ramps
+        at its rate bound from the previous one towards each of 0, +-w_max / 2 and +-w_max
+        (five candidates); each candidate is rolled out from ``x0`` (3,) and scored by the
+        smallest slack of its positions in the corridor chain's members (saturated at 5 cm,
+        so any candidate that stays 5 cm inside counts as good); the best wins, ties going to
+        the first (yaw rate towards 0).
+        """
+        n = self.N
+        a, al = float(self._rate_step[0]), float(self._rate_step[1])
+        v0, w0 = float(self._u_prev[0]), float(self._u_prev[1])
+        k = np.arange(1, n + 1)
+        v = np.sign(v0) * np.maximum(abs(v0) - k * a, 0.0)
+        wm = self.limits.w_max
+        best, best_score = None, -np.inf
+        for target in (0.0, 0.5 * wm, -0.5 * wm, wm, -wm):
+            w = w0 + np.clip(target - w0, -k * al, k * al)
+            # once stopped, bring the yaw rate back to rest as well
+            stopped = np.flatnonzero(v == 0.0)
+            if stopped.size:
+                j = stopped[0]
+                w[j:] = np.sign(w[j - 1] if j > 0 else w0) * np.maximum(
+                    abs(w[j - 1] if j > 0 else w0) - np.arange(1, n - j + 1) * al, 0.0
+                )
+            u = np.stack((v, w), axis=1)
+            if not np.all(np.isfinite(x0)):
+                return u
+            xs = rollout_np(x0, u, self.dt)
+            score = min(float(self._union_slack(xs[1:, :2]).min()), 0.05)
+            if score > best_score + 1e-9:
+                best, best_score = u, score
+        return best
 
     # ---------------------------------------------------------------- the step
 
@@ -994,9 +1093,12 @@ class SAMPC:
         n = self.N
         k_step = self._step_index
         self._step_index += 1
-        x0 = np.asarray(obs.pose, dtype=float).reshape(3)
-        if not np.all(np.isfinite(x0)):
-            return self._fallback(x0, t0, None, None, "bad_measurement")
+        x_meas = np.asarray(obs.pose, dtype=float).reshape(3)
+        if obs.velocity is not None:
+            self.monitor.update(obs.velocity)
+        if not np.all(np.isfinite(x_meas)):
+            return self._fallback(x_meas, t0, None, None, "bad_measurement")
+        x0 = self.effective_state(x_meas)
 
         xr, ur = self.horizon_reference(x0)
         if self._turning:
@@ -1009,12 +1111,18 @@ class SAMPC:
         guess = rollout_np(x0, u_guess, self.dt)
         s = assign_stages(self.chain, guess[:, :2], self._first_candidates(), tol=self._check_tol)
         boxes = stage_boxes(self.chain, s)
-        boxes_c = self._relaxed_boxes(boxes, x0[:2])
+        boxes_c, excursion = self._relaxed_boxes(boxes, x0[:2])
         xr, ur = self._exit_targets(xr, ur, s, x0[:2], float(x0[2]))
 
         u_prev = np.tile(self._u_prev, n)
         z_ub = np.minimum(self._z_ub, u_prev + self._reach)
         z_lb = np.minimum(np.maximum(self._z_lb, u_prev - self._reach), z_ub)
+        cap = self.speed_cap(excursion)
+        if cap < self.limits.v_max:
+            # slow down to the cap at the rate bound (never asks for more than the rate allows)
+            z_ub[0::2] = np.minimum(z_ub[0::2], np.maximum(cap, u_prev[0::2] - self._reach[0::2]))
+            z_lb[0::2] = np.maximum(z_lb[0::2], np.minimum(-cap, u_prev[0::2] + self._reach[0::2]))
+            z_lb = np.minimum(z_lb, z_ub)
         g_lb = np.concatenate((boxes_c[1:, :2].ravel(), self._rate_lb))
         g_ub = np.concatenate((boxes_c[1:, 2:].ravel(), self._rate_ub))
         p = self._p_buf.copy()
@@ -1028,17 +1136,18 @@ class SAMPC:
         self.last = StepInfo(
             s, boxes_c, u_guess, guess, xr, ur, self._u_prev.copy(), z_lb.reshape(n, 2), z_ub.reshape(n, 2), self._rate_step
         )
+        problem = (g_lb, g_ub, z_lb, z_ub, u_guess, guess)
         y0 = y_z0 = None
         if self._active is not None and self._active.next == 1 and self._active.y is not None:
             y0 = shift_multipliers(self.ocp, self._active.y, shift_rates=False)
             y_z0 = shift_bound_multipliers(self._active.y_z)
 
         if self.failure_injector is not None and self.failure_injector(k_step):
-            return self._fallback(x0, t0, s, boxes_c, "injected")
+            return self._fallback(x0, t0, s, boxes_c, "injected", problem)
         res = self.backend.solve(p, z_lb, z_ub, g_lb, g_ub, z0, y0, y_z0)
         z = res.z
         if not np.all(np.isfinite(z)):
-            return self._fallback(x0, t0, s, boxes_c, f"nonfinite:{res.status}")
+            return self._fallback(x0, t0, s, boxes_c, f"nonfinite:{res.status}", problem)
         xs = rollout_np(x0, z.reshape(n, 2), self.dt)
         viol = self._violation(z, xs, g_lb, g_ub, z_lb, z_ub)
         feasible = viol <= self._check_tol
@@ -1047,16 +1156,17 @@ class SAMPC:
         elif self.config.accept_inexact and feasible:
             status = "inexact"
         else:
-            return self._fallback(x0, t0, s, boxes_c, f"rejected:{res.status}:viol={viol:.2e}")
+            return self._fallback(x0, t0, s, boxes_c, f"rejected:{res.status}:viol={viol:.2e}", problem)
         u = z.reshape(n, 2)
         self._active = _Plan(u.copy(), 1, np.asarray(res.y, float), res.y_z)
         self._s_prev = s
         self._u_prev = u[0].copy()
         self._count(status)
         margins = np.concatenate(([box_slack(x0[None, :2], boxes_c[:1])[0]], box_slack(xs[1:, :2], boxes_c[1:])))
+        v, w = self._send(u[0])
         return Command(
-            v=float(u[0, 0]),
-            w=float(u[0, 1]),
+            v=v,
+            w=w,
             solve_ms=(time.perf_counter() - t0) * 1e3,
             status=status,
             ok=True,
@@ -1068,21 +1178,33 @@ class SAMPC:
     def _count(self, status: str) -> None:
         self.stats.counts[status] = self.stats.counts.get(status, 0) + 1
 
-    def _fallback(self, x0, t0, s, boxes, reason: str) -> Command:
-        """Apply the next input of the active plan, or brake at the rate limits."""
+    def _fallback(self, x0, t0, s, boxes, reason: str, problem=None) -> Command:
+        """Apply the next input of the active plan if it is still feasible, else brake (see "Fallback")."""
         a = self._active
-        if a is not None and a.next < len(a.u):
-            u = a.u[a.next].copy()
-            a.next += 1
-            a.y = None
-            a.y_z = None
-            status = "fallback_shift"
-            rest = a.u[a.next - 1 :]
-        else:
-            u = np.sign(self._u_prev) * np.maximum(np.abs(self._u_prev) - self._rate_step, 0.0)
+        rest = None
+        if a is not None and not a.brake and a.next < len(a.u):
+            shift_ok = not self.config.fallback_brake
+            if not shift_ok and problem is not None:
+                g_lb, g_ub, z_lb, z_ub, u_guess, guess = problem
+                shift_ok = self._violation(u_guess.ravel(), guess, g_lb, g_ub, z_lb, z_ub) <= self._check_tol
+            if shift_ok:
+                u = a.u[a.next].copy()
+                a.next += 1
+                a.y = None
+                a.y_z = None
+                status = "fallback_shift"
+                rest = a.u[a.next - 1 :]
+        if rest is None:
+            if self.config.fallback_brake:
+                plan = self.brake_plan(x0)
+                u = plan[0].copy()
+                self._active = _Plan(plan, 1, brake=True)
+                rest = plan
+            else:
+                u = np.sign(self._u_prev) * np.maximum(np.abs(self._u_prev) - self._rate_step, 0.0)
+                self._active = None
+                rest = u[None, :]
             status = "fallback_stop"
-            self._active = None
-            rest = u[None, :]
         u = np.clip(np.nan_to_num(u), self.limits.lower(), self.limits.upper())
         self._u_prev = u
         if s is not None:
@@ -1092,9 +1214,10 @@ class SAMPC:
         predicted = None
         if np.all(np.isfinite(x0)):
             predicted = rollout_np(x0, rest, self.dt)
+        v, w = self._send(u)
         return Command(
-            v=float(u[0]),
-            w=float(u[1]),
+            v=v,
+            w=w,
             solve_ms=(time.perf_counter() - t0) * 1e3,
             status=status,
             ok=False,
