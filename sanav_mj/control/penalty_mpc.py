@@ -276,6 +276,42 @@ class PenaltyConfig:
             raise ValueError(f"PenaltyConfig.min_outer_iter must be an integer >= 1, got {mo!r}")
 
 
+def resolved_reference_speed(robot: RobotParams, config: MPCConfig = MPCConfig(),
+                             penalty: PenaltyConfig = PenaltyConfig()) -> float:
+    """[m/s] speed along the straight reference: ``penalty.reference_speed``, or 0.8 times
+    the MPC's resolved ``v_max`` (``config.limits(robot)``) when that is None."""
+    if penalty.reference_speed is not None:
+        return float(penalty.reference_speed)
+    return 0.8 * config.limits(robot).v_max
+
+
+def straight_reference(pose: np.ndarray, goal: np.ndarray, lookahead: float, speed: float, horizon: int,
+                       dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The baseline's reference from ``pose`` (3,) [m, m, rad] to ``goal`` (2,) [m].
+
+    Sample k (k = 0..horizon) lies ``min(lookahead + k * speed * dt, d)`` metres along the
+    line from the robot to the goal (``d`` its distance, [m]; ``lookahead`` [m], ``speed``
+    [m/s], ``dt`` [s]), with the goal's bearing as yaw on the branch of ``pose[2]`` (the
+    measured yaw within 0.1 m of the goal: no spinning there); its input is ``(speed, 0)``
+    until the samples reach the goal, then zero.
+
+    Returns:
+        states (horizon + 1, 3) [m, m, rad] and inputs (horizon, 2) [m/s, rad/s].
+    """
+    pose = np.asarray(pose, dtype=float).reshape(3)
+    d = np.asarray(goal, dtype=float).reshape(2) - pose[:2]
+    dist = float(np.hypot(*d))
+    n = int(horizon)
+    heading = math.atan2(d[1], d[0]) if dist > 0.1 else float(pose[2])
+    heading = pose[2] + (heading - pose[2] + math.pi) % (2 * math.pi) - math.pi
+    s = np.minimum(lookahead + np.arange(n + 1) * speed * dt, dist)
+    unit = d / dist if dist > 1e-6 else np.zeros(2)
+    xr = np.column_stack((pose[0] + s * unit[0], pose[1] + s * unit[1], np.full(n + 1, heading)))
+    ur = np.zeros((n, 2))
+    ur[:, 0] = np.where(s[1:] < dist, speed, 0.0)
+    return xr, ur
+
+
 def _tighter(a: float | None, b: float | None) -> float | None:
     """The smaller of two optional limits (None: no limit)."""
     if a is None:
@@ -346,7 +382,7 @@ class PenaltyMPC:
         self.limits = replace(limits, v_min=0.0) if penalty.forward_only else limits
         self.goal = goal
         self.failure_injector = failure_injector
-        self.reference_speed = 0.8 * self.limits.v_max if penalty.reference_speed is None else float(penalty.reference_speed)
+        self.reference_speed = resolved_reference_speed(robot, config, penalty)
         n_edges = penalty.n_edges
         self.penalty = ObstaclePenalty(penalty.n_slots, n_edges, penalty.form)
         polys = [obstacle_polygon(o, inflation, n_edges, corner_cuts=n_edges >= 8) for o in obstacles]
@@ -408,17 +444,7 @@ class PenaltyMPC:
         samples reach the goal, then zero. Within 0.1 m of the goal the yaw reference is the
         measured yaw (no spinning at the goal).
         """
-        d = self.goal - pose[:2]
-        dist = float(np.hypot(*d))
-        n = self.N
-        heading = math.atan2(d[1], d[0]) if dist > 0.1 else float(pose[2])
-        heading = pose[2] + (heading - pose[2] + math.pi) % (2 * math.pi) - math.pi
-        s = np.minimum(self.settings.lookahead + np.arange(n + 1) * self.reference_speed * self.dt, dist)
-        unit = d / dist if dist > 1e-6 else np.zeros(2)
-        xr = np.column_stack((pose[0] + s * unit[0], pose[1] + s * unit[1], np.full(n + 1, heading)))
-        ur = np.zeros((n, 2))
-        ur[:, 0] = np.where(s[1:] < dist, self.reference_speed, 0.0)
-        return xr, ur
+        return straight_reference(pose, self.goal, self.settings.lookahead, self.reference_speed, self.N, self.dt)
 
     def _obstacle_params(self, pos: np.ndarray) -> np.ndarray:
         k = self.penalty.n_slots

@@ -6,8 +6,9 @@ Every function writes one PNG of a fixed pixel size (``figsize * dpi``) and retu
 
 - :func:`plot_areas`: the paper's Fig. 2 (scene -> inflated grid -> quadtree -> merged safe
   areas and graph) and Fig. 4 (corridor, waypoints, interpolated path, smoothed reference).
-- :func:`plot_run`: the paper's Fig. 3 for one run (safe areas, reference, executed path
-  coloured by speed, footprints, collisions) with v / w over time.
+- :func:`plot_run`: the paper's Fig. 3 for one run (safe areas, the reference the run's
+  controller tracked (:func:`run_reference`), executed path coloured by speed, footprints,
+  collisions) with v / w over time.
 - :func:`plot_success_bars`: the paper's Fig. 6, success rate per scenario and method.
 - :func:`plot_heatmap`: robustness heat map over one or two swept keys (1-D: a line plot).
 """
@@ -15,6 +16,7 @@ Every function writes one PNG of a fixed pixel size (``figsize * dpi``) and retu
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -235,13 +237,78 @@ def _trace_arrays(tr: Any) -> dict[str, np.ndarray]:
     }
 
 
+@dataclass
+class RunReference:
+    """What a run's controller tracked, to draw on the map.
+
+    Attributes:
+        label: legend text; when ``paths`` is empty it says that there is no reference path
+            and what the controller was given instead.
+        paths: polylines (K_i, 2) [m] of the reference (empty: none).
+        origins: (len(paths), 2) [m] the measured robot position each path was computed
+            from, or (0, 2) when the path does not depend on the robot's position.
+    """
+
+    label: str
+    paths: list[np.ndarray] = field(default_factory=list)
+    origins: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+
+
+def run_reference(outcome: Any, steps: Sequence[int] = (0,)) -> RunReference:
+    """The reference that the run's controller (``outcome.controller``) tracked.
+
+    - ``"sa-mpc"``: the planned reference (smoothed, time-parametrised path through the
+      safe-area corridor), one polyline; none when planning found no path.
+    - ``"mpc"``: the penalty MPC re-aims its reference at every step: the straight line to
+      the goal from the *measured* pose, from ``lookahead`` ahead over the horizon
+      (:func:`sanav_mj.control.penalty_mpc.straight_reference` with the default settings
+      that ``make_controller("mpc")`` uses), one segment per step in ``steps``.
+    - ``"dwa"``, ``"dqn"`` and any other name: no reference path (DWA scores arcs by their
+      heading to the goal; the DQN policy sees the goal's distance and bearing).
+
+    Args:
+        outcome: a :class:`~sanav_mj.eval.episode.RunOutcome`.
+        steps: control-step indices at which the ``"mpc"`` reference is drawn (indices
+            outside the trace are ignored).
+    """
+    prep, tr = outcome.prepared, outcome.episode.trace
+    name = str(outcome.controller)
+    if name == "sa-mpc":
+        ref = prep.plan.reference
+        if ref is None or not len(ref):
+            return RunReference(f"no reference path (planning: {prep.plan.reason})")
+        return RunReference("reference (safe-area corridor)", [np.asarray(ref.states, dtype=float)[:, :2]])
+    if name == "mpc":
+        from sanav_mj.control.penalty_mpc import PenaltyConfig, resolved_reference_speed, straight_reference
+        from sanav_mj.control.sa_mpc import MPCConfig
+
+        cfg, pen = MPCConfig(), PenaltyConfig()
+        speed = resolved_reference_speed(prep.scenario.robot, cfg, pen)
+        seen = tr.measured if len(tr.measured) == len(tr.t) else tr.pose
+        if not len(seen):  # no step was run: the reference of the first step, from the start
+            seen = [np.asarray(outcome.start, dtype=float).reshape(3)]
+        idx = sorted({int(k) for k in steps if 0 <= int(k) < len(seen)})
+        poses = [np.asarray(seen[k], dtype=float).reshape(3) for k in idx]
+        poses = [p for p in poses if np.all(np.isfinite(p))]
+        paths = [straight_reference(p, prep.scenario.goal, pen.lookahead, speed, cfg.horizon, cfg.dt)[0][:, :2]
+                 for p in poses]
+        origins = np.array([p[:2] for p in poses]).reshape(-1, 2)
+        return RunReference(f"reference: straight to the goal from {pen.lookahead:g} m ahead, re-aimed "
+                            "every step (drawn at the footprints)", paths, origins)
+    given = {"dwa": "DWA scores arcs by heading to the goal", "dqn": "DQN sees the goal's distance and bearing"}
+    return RunReference(f"no reference path ({given.get(name, f'controller {name!r}')})")
+
+
 def plot_run(outcome: Any, path: str | Path, n_footprints: int = 6, dpi: int = 100) -> Path:
     """One run (the paper's Fig. 3): map with the executed path, and v / w over time.
 
-    The map shows the safe areas (green), obstacles (red), the reference (blue), the executed
-    path coloured by measured speed, start / goal, the robot footprint at ``n_footprints``
-    poses evenly spaced in time plus the final one, and a red cross at every step that
-    ended in contact. The right panels show commanded and measured v and w.
+    The map shows the safe areas (green), obstacles (red), the reference the controller
+    tracked (blue, :func:`run_reference`: SA-MPC's planned reference; the penalty MPC's
+    straight reference at the footprint steps, dotted from the measured position; for DWA
+    and DQN none, which the legend says), the executed path coloured by measured speed,
+    start / goal, the robot footprint at ``n_footprints`` poses evenly spaced in time plus
+    the final one, and a red cross at every step that ended in contact. The right panels
+    show commanded and measured v and w.
 
     Args:
         outcome: a :class:`~sanav_mj.eval.episode.RunOutcome`.
@@ -274,12 +341,17 @@ def plot_run(outcome: Any, path: str | Path, n_footprints: int = 6, dpi: int = 1
 
     _draw_rects(ax, rects, face=_SAFE, edge="#145a32", alpha=0.25, lw=0.6)
     _draw_obstacles(ax, sc)
-    ref = prep.plan.reference
-    if ref is not None and len(ref):
-        st = np.asarray(ref.states, dtype=float)
-        ax.plot(st[:, 0], st[:, 1], "-", color=_SMOOTH, lw=1.5, zorder=5, label="reference")
     pose = tr["pose"]
     n = len(pose)
+    idx = np.unique(np.linspace(0, n - 1, n_footprints).round().astype(int)) if n and n_footprints else []
+    reference = run_reference(outcome, [int(i) for i in idx] or [0])
+    for i, line in enumerate(reference.paths):
+        ax.plot(line[:, 0], line[:, 1], "-", color=_SMOOTH, lw=1.5, zorder=5,
+                label=reference.label if i == 0 else None)
+    for origin, line in zip(reference.origins, reference.paths):
+        ax.plot([origin[0], line[0, 0]], [origin[1], line[0, 1]], ":", color=_SMOOTH, lw=0.8, zorder=5)
+    if not reference.paths:
+        ax.plot([], [], " ", label=reference.label)
     if n:
         xy = np.vstack((pose[:, :2], np.asarray(ep.final_pose, dtype=float).reshape(3)[:2]))
         speed = np.abs(tr["velocity"][:, 0])
@@ -290,7 +362,6 @@ def plot_run(outcome: Any, path: str | Path, n_footprints: int = 6, dpi: int = 1
         ax.add_collection(lc)
         fig.colorbar(lc, ax=ax, label="measured speed [m/s]", shrink=0.8)
         fp = robot_footprint(sc.model)
-        idx = np.unique(np.linspace(0, n - 1, n_footprints).round().astype(int)) if n_footprints else []
         poses = [pose[i] for i in idx] + [np.asarray(ep.final_pose, dtype=float).reshape(3)]
         for p in poses:
             c, s = np.cos(p[2]), np.sin(p[2])

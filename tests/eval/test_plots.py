@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from sanav_mj.eval.episode import Prepared, RunOutcome
-from sanav_mj.eval.plots import plot_areas, plot_heatmap, plot_run, plot_success_bars
+from sanav_mj.eval import plots
+from sanav_mj.eval.plots import plot_areas, plot_heatmap, plot_run, plot_success_bars, run_reference
 from sanav_mj.mapping.occupancy import OccupancyGrid
 from sanav_mj.mapping.quadtree import QuadtreeLeaves
 from sanav_mj.mapping.safe_areas import SafeAreas
@@ -232,3 +233,81 @@ def test_plots_of_a_real_run(tmp_path):
     assert len(out.episode.trace) > 5
     assert_png(plot_run(out, tmp_path / "run.png"), (1500, 750))
     assert_png(plot_areas(out.prepared, tmp_path / "areas.png"), (1500, 900))
+
+
+# ---------------------------------------------------------------------------- what each controller tracked
+def _as(outcome: RunOutcome, controller: str) -> RunOutcome:
+    return RunOutcome(outcome.prepared, controller, outcome.start, outcome.episode, outcome.document)
+
+
+def test_run_reference_of_sa_mpc_is_the_plan(prep):
+    ref = run_reference(outcome_of(prep, make_trace()))
+    assert ref.label == "reference (safe-area corridor)" and ref.origins.shape == (0, 2)
+    assert len(ref.paths) == 1
+    np.testing.assert_array_equal(ref.paths[0], prep.plan.reference.states[:, :2])
+
+
+def test_run_reference_of_sa_mpc_without_a_plan(prep):
+    from dataclasses import replace
+
+    no_plan = replace(prep, plan=Plan(False, "no_path", np.zeros(0, int), np.array([4.0, 0.0]), np.zeros((0, 2)),
+                                      np.zeros((0, 2)), np.zeros((0, 2)), None))
+    ref = run_reference(outcome_of(no_plan, make_trace()))
+    assert ref.paths == [] and ref.label == "no reference path (planning: no_path)"
+
+
+def test_run_reference_of_the_penalty_mpc_known_answers(prep):
+    out = _as(outcome_of(prep, make_trace()), "mpc")
+    ref = run_reference(out, [0, 10, 99])  # step 99 is past the end of the 25-step trace
+    assert len(ref.paths) == 2 and "straight to the goal from 3 m ahead" in ref.label
+    # step 0: measured (0, 0), goal (4, 0); the fixture robot's MPC v_max is 2 - 3 * 0.19 = 1.43 m/s,
+    # the reference runs at 0.8 of it: sample k at min(3 + 0.1144 k, 4) m along x
+    s = np.minimum(3.0 + 0.8 * 1.43 * 0.1 * np.arange(21), 4.0)
+    np.testing.assert_allclose(ref.paths[0], np.column_stack((s, np.zeros(21))), atol=1e-12)
+    # step 10: measured (1.6, -0.8 sin(0.4 pi)), 2.52 m from the goal, less than the lookahead:
+    # every sample sits on the goal
+    np.testing.assert_allclose(ref.paths[1], np.tile([4.0, 0.0], (21, 1)), atol=1e-12)
+    np.testing.assert_allclose(ref.origins, [[0.0, 0.0], [1.6, -0.8 * np.sin(0.4 * np.pi)]], atol=1e-12)
+
+
+def test_run_reference_of_the_penalty_mpc_is_the_controllers(prep):
+    """The drawn segment equals what a PenaltyMPC as built by make_controller("mpc") tracks."""
+    from sanav_mj.control.penalty_mpc import PenaltyMPC
+
+    sc = prep.scenario
+    ctl = PenaltyMPC(sc.robot, sc.obstacles, prep.grid.inflation, sc.goal)
+    tr = make_trace()
+    ref = run_reference(_as(outcome_of(prep, tr), "mpc"), range(0, 25, 4))
+    assert len(ref.paths) == 7
+    for k, line in zip(range(0, 25, 4), ref.paths):
+        np.testing.assert_allclose(line, ctl.reference(tr.measured[k])[0][:, :2], atol=1e-12)
+
+
+@pytest.mark.parametrize("controller, fragment", [("dwa", "DWA"), ("dqn", "DQN"), ("ppo", "'ppo'")])
+def test_run_reference_of_controllers_without_one(prep, controller, fragment):
+    ref = run_reference(_as(outcome_of(prep, make_trace()), controller))
+    assert ref.paths == [] and ref.label.startswith("no reference path") and fragment in ref.label
+
+
+def _drawn_map(monkeypatch, outcome, tmp_path):
+    """plot_run's map axes (the figure is captured instead of saved)."""
+    figs = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: figs.append(fig) or Path(path))
+    plot_run(outcome, tmp_path / "run.png")
+    ax = figs[0].axes[0]
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    blue = [ln for ln in ax.get_lines() if ln.get_color() == plots._SMOOTH and ln.get_linestyle() == "-"]
+    return legend, blue
+
+
+@pytest.mark.parametrize("controller", ["sa-mpc", "mpc", "dwa", "dqn"])
+def test_plot_run_draws_what_each_controller_tracked(prep, tmp_path, monkeypatch, controller):
+    out = _as(outcome_of(prep, make_trace()), controller)
+    legend, blue = _drawn_map(monkeypatch, out, tmp_path)
+    want = run_reference(out, [0, 5, 10, 14, 19, 24])  # the footprint steps of 25 steps, 6 footprints
+    assert want.label in legend
+    assert len(blue) == len(want.paths)
+    for line, path in zip(blue, want.paths):
+        np.testing.assert_allclose(line.get_xydata(), path)
+    if controller in ("dwa", "dqn"):
+        assert blue == [] and not any("reference (" in t for t in legend)
