@@ -3,7 +3,7 @@
 Exit codes: 0 success; 1 a run ended without reaching the goal; 2 bad input (one line on
 stderr naming the file or argument and what is wrong, no traceback), which includes an output
 file or folder that cannot be created or written (``run`` prints its result line and writes
-its other outputs first).
+its other outputs first); 130 interrupted; 141 stdout closed early (``| head``), quietly.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from pathlib import Path
 from typing import NoReturn
@@ -190,6 +191,18 @@ def _check_scenarios(names: list[str]) -> None:
         load_scenario(name)
 
 
+def _distinct_outputs(named: dict[str, Path | None]) -> None:
+    """Two output options naming the same file would overwrite each other: bad input."""
+    seen: dict[Path, str] = {}
+    for name, path in named.items():
+        if path is None:
+            continue
+        key = path.resolve()
+        if key in seen:
+            raise BadInput(f"{name} {path}: the same file as {seen[key]}; give each output its own file")
+        seen[key] = name
+
+
 def _check_outputs(*paths: Path | None) -> None:
     """Fail early (before any long work) when an output path is unusable."""
     for path in paths:
@@ -206,6 +219,7 @@ def _check_outputs(*paths: Path | None) -> None:
 def _cmd_areas(args) -> int:
     from sanav_mj.eval.episode import areas_document, prepare
 
+    _distinct_outputs({"--json": args.json, "--plot": args.plot})
     _check_outputs(args.json, args.plot)
     prep = prepare(args.scenario, resolution=args.resolution)
     doc = areas_document(prep)
@@ -230,6 +244,7 @@ def _cmd_run(args) -> int:
     from sanav_mj.sim.mismatch import parse_mismatch
 
     mismatch = parse_mismatch(args.mismatch)
+    _distinct_outputs({"--json": args.json, "--rrd": args.rrd, "--plot": args.plot})
     _check_outputs(args.json, args.rrd, args.plot)
     try:
         out = run_scenario(
@@ -349,6 +364,12 @@ def main(argv: list[str] | None = None) -> int:
     except (BadInput, ScenarioError, MismatchError) as exc:
         print(f"sanav-mj: error: {_one_line(str(exc))}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # stdout closed early (``sanav-mj ... | head``): stop quietly, as a shell tool
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (OSError, ValueError):
+            pass
+        return 141
     except OSError as exc:  # an output (or input) file that cannot be written or read mid-way
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"sanav-mj: error: {where}{_one_line(exc.strerror or str(exc))}", file=sys.stderr)

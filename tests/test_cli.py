@@ -225,3 +225,24 @@ def test_recording_that_cannot_be_written_is_one_line(capsys):
     assert code == 2
     assert err.count("\n") == 1 and "Traceback" not in err
     assert "/dev/full: cannot write the recording" in err
+
+
+@pytest.mark.parametrize("argv", [["run", "u_shape", "--json", "{d}/x", "--plot", "{d}/x"],
+                                  ["run", "u_shape", "--rrd", "{d}/x", "--json", "{d}/./x"],
+                                  ["areas", "u_shape", "--json", "{d}/x", "--plot", "{d}/sub/../x"]])
+def test_two_outputs_in_one_file_is_bad_input(tmp_path, capsys, argv):
+    (tmp_path / "sub").mkdir()
+    code, _, err = _run([a.format(d=tmp_path) for a in argv], capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert "the same file as" in err
+    assert not (tmp_path / "x").exists()  # found before any work or output
+
+
+def test_closed_stdout_stops_quietly():
+    """``sanav-mj areas u_shape | head -0``: no traceback, no error line, exit 141 (SIGPIPE)."""
+    proc = subprocess.Popen([sys.executable, "-m", "sanav_mj.cli", "areas", "u_shape"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()  # before the child prints its summary line
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 141
+    assert err == ""
