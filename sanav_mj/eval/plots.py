@@ -279,7 +279,11 @@ def run_reference(outcome: Any, steps: Sequence[int] = (0,)) -> RunReference:
             return RunReference(f"no reference path (planning: {prep.plan.reason})")
         return RunReference("reference (safe-area corridor)", [np.asarray(ref.states, dtype=float)[:, :2]])
     if name == "mpc":
-        from sanav_mj.control.penalty_mpc import PenaltyConfig, resolved_reference_speed, straight_reference
+        from sanav_mj.control.penalty_mpc import (
+            PenaltyConfig,
+            resolved_reference_speed,
+            straight_reference,
+        )
         from sanav_mj.control.sa_mpc import MPCConfig
 
         cfg, pen = MPCConfig(), PenaltyConfig()

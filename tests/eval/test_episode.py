@@ -130,8 +130,8 @@ def test_walled_off_goal_is_no_path(tmp_path):
 def _robot(**kw):
     from sanav_mj.scene import RobotParams
 
-    values = dict(wheel_radius=0.1, track=0.4, footprint_radius=0.3, wheel_speed_max=20.0, v_max=2.0,
-                  w_max=10.0, a_max=1.0, alpha_max=3.0)
+    values = {"wheel_radius": 0.1, "track": 0.4, "footprint_radius": 0.3, "wheel_speed_max": 20.0, "v_max": 2.0,
+              "w_max": 10.0, "a_max": 1.0, "alpha_max": 3.0}
     values.update(kw)
     return RobotParams(**values)
 
