@@ -103,13 +103,32 @@ class MPCConfig:
             passages a few cm wide, where the last iterate is often still feasible within
             ``constraint_tol`` (``"inexact"``); a limit of 8 or 12 turned those into
             fallbacks (6x more on the generated clutter maps) for a lower maximum time.
-        solve_budget_ms: [ms] wall-clock limit of one solve (None: none); the solver stops
-            and its last iterate is used if it is feasible, else the fallback. Default 50 ms,
-            half the default control period: a normal solve takes about 1 ms, but a few
-            (nearly) infeasible problems in cm-wide passages of generated maps ran all 20
-            ALM passes for up to 200 ms, longer than the period the command is for.
+        solve_budget_ms: [ms] wall-clock limit of one solve; the solver stops and its last
+            iterate is used if it is feasible, else the fallback. Default None: the solve is
+            limited by the iteration caps ``max_iter`` and ``max_outer_iter`` only, so the
+            same inputs give the same command on any machine at any load (a wall-clock cut
+            made the outcome of a seed depend on the load; docs/robustness.md). Set it (e.g.
+            ``--mismatch solve_budget_ms=B``) to study a real-time budget.
         accept_inexact: use a non-converged iterate when it is finite and satisfies every
             constraint (status ``"inexact"``); when False such a step takes the fallback.
+        latency_compensation: predict the state at the instant the new command takes effect
+            through the commands already sent but not yet applied, using the delay and gains
+            identified online by the :class:`~sanav_mj.control.monitor.ActuationMonitor`
+            (see "Latency compensation" in :class:`SAMPC`).
+        gain_compensation: divide each sent command by the identified gains, so that the
+            plant realises the planned velocity (off by default: not needed in the measured
+            envelope, see docs/robustness.md).
+        monitor: settings of the actuation monitor (delay range, forgetting, gain clamp).
+        excursion_stop: [m] speed derating when the position (at the instant the command
+            takes effect) lies outside its stage box by ``e``: the speed bound becomes
+            ``v_max max(derate_floor, 1 - e / excursion_stop)``, reached at the rate bound
+            (see "Measured position outside its box"). None: no derating.
+        derate_floor: fraction of ``v_max`` the derating never goes below (so that a robot
+            slightly outside its box still makes progress back in).
+        fallback_brake: on a rejected solve, apply the previous plan only if it still meets
+            every constraint of the current problem (rolled out from the current state),
+            else brake at the rate bounds steering inside the corridor (see "Fallback");
+            False: the paper-style fallback that replays the previous plan open loop.
         turn_in_place: [rad] when the heading error to the reference at the first step of an
             episode exceeds this, the robot first turns on the spot (status ``"turn"``, see
             "Opening turn" in :class:`SAMPC`); None: the MPC handles every start.
@@ -677,7 +696,26 @@ class SAMPC:
     shrunk by the same margin) together with the tracking cost pulls the plan back in. The
     widening is re-measured every step, so it vanishes once the robot is back inside; it
     never exceeds the measured excursion, which lies inside the real safe area as long as
-    it is smaller than ``box_margin``.
+    it is smaller than ``box_margin``. Because an excursion is evidence that the model is
+    wrong, the speed bound of every stage is lowered at the same time, to
+    ``v_max max(derate_floor, 1 - e / excursion_stop)`` for an excursion ``e`` (reached at
+    the rate bound from the previous input, so the bounds stay consistent): the further
+    out, the slower, which shortens the stopping distance and the distance driven on a
+    wrong model before the next measurement.
+
+    **Latency compensation.** A plant that applies each command ``d`` control steps late
+    (actuator and communication latency) makes an MPC that plans from the measured state
+    weave: its first input takes effect ``d dt`` later than it assumes. The controller knows
+    the commands it sent; the :class:`~sanav_mj.control.monitor.ActuationMonitor` identifies
+    ``d`` (0..``monitor.max_delay``) and the gains ``(g_v, g_w)`` online from the measured body
+    velocity (least squares with forgetting, per candidate delay; smallest residual wins,
+    with hysteresis). Each step rolls the measured pose forward through the ``d`` commands
+    already sent and not yet applied (scaled by the gains) and poses the problem from that
+    predicted state, with the last sent input as ``u_prev``. The stage-0 position of every
+    argument below is then that prediction; the positions between the measurement and it
+    were planned by the earlier solves that sent those commands. Assumed: the delay is an
+    integer number of periods and constant over the forgetting horizon (about 2 s); a wrong
+    estimate shows up as tracking error like any other mismatch.
 
     **Recursive feasibility** (nominal model, no disturbance, converged solves, the default
     ``terminal_stop``): let ``u*`` be the previous plan with positions ``p*_0..p*_N`` and
@@ -696,10 +734,28 @@ class SAMPC:
     **Fallback.** A solve is rejected when the back-end does not converge (unless
     ``accept_inexact`` and the iterate satisfies every constraint), returns non-finite
     values, or the rolled-out plan violates a constraint by more than 10x
-    ``constraint_tol``. Then the next input of the active (previous) plan is applied
-    (status ``"fallback_shift"``; the active plan ends stopped under ``terminal_stop``, so
-    following it nominally stays in its boxes); once it is exhausted the robot brakes at the
-    rate limits (``"fallback_stop"``). Commands are always finite.
+    ``constraint_tol``. With ``fallback_brake`` (default) the rest of the previous plan
+    (the warm start, ending at rest) is then rolled out from the *current* state and
+    checked against every constraint of the current problem (boxes, input, rate and speed
+    bounds): if it passes, it is a feasible plan and its first input is applied (status
+    ``"fallback_shift"``; this is the recursive-feasibility case). Otherwise the robot
+    brakes (status ``"fallback_stop"``, re-planned every step from the current state): the
+    speed goes to zero at the rate bound while the yaw rate ramps at its rate bound towards
+    the one of five candidates (0, +-w_max/2, +-w_max) whose braking path stays deepest
+    inside the corridor's chain members (:meth:`brake_plan`). It never replays an old plan
+    that the current state contradicts: under mismatch that open-loop replay at speed was
+    the last step before most collisions (docs/robustness.md). With ``fallback_brake=False``
+    the previous plan is replayed open loop until it runs out, then the robot brakes
+    straight. Commands are always finite.
+
+    **What the mismatch handling assumes, and what it does not give.** Nothing above is a
+    guarantee under mismatch: the stage boxes constrain the *model's* prediction. What the
+    mechanisms give is that model error is met by going slower (excursion derating),
+    planning from where the robot will be when the command acts (latency compensation) and
+    stopping instead of replaying (fallback). A plant that cannot follow the braking the
+    model assumes (``a_max``; e.g. at very low friction or a small torque limit) or a
+    position error larger than ``box_margin`` plus the map's inflation margin within one
+    period can still collide; docs/robustness.md gives the measured envelope.
 
     **Opening turn.** With a random initial yaw the robot often starts facing away from the
     reference. Posed to the MPC, that start is the hardest problem of the episode: the

@@ -249,19 +249,26 @@ def test_ipopt_and_panoc_agree_on_the_sa_mpc_problem(l_case):
 # ------------------------------------------------------------------ closed loops
 
 
-def run_closed_loop(ctl: SAMPC, start, goal, rects, steps=400, gains=(0.95, 1.05), substeps=10, noise=0.0, seed=0):
-    """Kinematic plant with gain mismatch; returns (reached, executed positions, commands)."""
+def run_closed_loop(
+    ctl: SAMPC, start, goal, rects, steps=400, gains=(0.95, 1.05), substeps=10, noise=0.0, seed=0, delay=0
+):
+    """Kinematic plant with gain mismatch and a command delay of ``delay`` periods; the
+    measured velocity is the applied one. Returns (reached, executed positions, commands)."""
     rng = np.random.default_rng(seed)
     x = np.asarray(start, float).copy()
     ctl.reset(x)
     path = [x[:2].copy()]
     cmds = []
+    in_flight = [np.zeros(2)] * delay
+    vel = np.zeros(2)
     for k in range(steps):
         meas = x + rng.normal(0, noise, 3) * np.array([1, 1, 0.2]) if noise else x
-        cmd = ctl.step(Observation(t=k * ctl.dt, pose=meas, velocity=np.zeros(2)))
+        cmd = ctl.step(Observation(t=k * ctl.dt, pose=meas, velocity=vel))
         cmds.append(cmd)
         assert np.isfinite(cmd.v) and np.isfinite(cmd.w)
-        u = np.array([cmd.v * gains[0], cmd.w * gains[1]])
+        in_flight.append(np.array([cmd.v * gains[0], cmd.w * gains[1]]))
+        u = in_flight.pop(0)
+        vel = u
         for _ in range(substeps):
             x = step_np(x, u, ctl.dt / substeps)
             path.append(x[:2].copy())
@@ -555,3 +562,127 @@ def test_implied_input_bounds_known_answer_and_never_cut_a_feasible_plan(l_case)
             u[k, 0] = np.clip(u[k, 0], -(n - 1 - k) * 0.15, (n - 1 - k) * 0.15)
         assert np.all(np.abs(np.diff(np.vstack(([1.0, 0.5], u)), axis=0)) <= [0.15 + 1e-12, 0.4 + 1e-12])
         assert np.all(u >= lo - 1e-12) and np.all(u <= hi + 1e-12)
+
+
+# ------------------------------------------------------------------ model mismatch handling
+
+
+@pytest.mark.parametrize("delay", [1, 3])
+def test_closed_loop_with_delay_and_geometry_mismatch(u_case, delay):
+    # actuator delay, wheels 10 % large, track 10 % narrow
+    areas, plan = u_case
+    steps = {}
+    for compensate in (True, False):
+        ctl = SAMPC(ROBOT, areas, plan, MPCConfig(latency_compensation=compensate))
+        ok, path, cmds = run_closed_loop(
+            ctl, [0.5, 0.5, 1.57], plan.goal, areas.rects[plan.corridor], gains=(1.1, 1.1 / 0.9), delay=delay
+        )
+        assert ctl.monitor.delay == delay  # identified either way
+        np.testing.assert_allclose(ctl.monitor.gains, [1.1, 1.1 / 0.9], rtol=0.02)
+        if compensate:
+            assert ok and ctl.stats.failures == 0
+            assert inside_union(path, areas.rects[plan.corridor]).all()
+        steps[compensate] = len(cmds)
+    if delay == 3:  # planning from the measured state with a late plant weaves: twice as long
+        assert steps[True] < 0.6 * steps[False]
+
+
+def test_effective_state_rolls_the_pose_through_the_commands_in_flight(l_case):
+    areas, plan = l_case
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
+    pose = np.array([0.5, 0.5, 0.3])
+    assert ctl.effective_state(pose) is pose  # no delay identified yet
+    ctl.monitor.delay = 2
+    ctl.monitor.gains = np.array([1.1, 0.9])
+    ctl.monitor.record([0.4, 0.5])
+    ctl.monitor.record([0.6, -0.2])
+    want = step_np(step_np(pose, [0.44, 0.45], ctl.dt), [0.66, -0.18], ctl.dt)
+    np.testing.assert_allclose(ctl.effective_state(pose), want, atol=1e-12)
+    assert ctl.effective_state(pose) is not pose
+    off = SAMPC(ROBOT, areas, plan, MPCConfig(latency_compensation=False))
+    off.monitor.delay = 2
+    assert off.effective_state(pose) is pose
+
+
+def test_speed_cap_known_answers(l_controller):
+    ctl = l_controller
+    vm = ctl.limits.v_max
+    assert ctl.speed_cap(0.0) == vm
+    assert ctl.speed_cap(0.03) == pytest.approx(vm * (1 - 0.03 / 0.15))
+    assert ctl.speed_cap(1.0) == pytest.approx(vm * 0.25)
+    assert SAMPC(ROBOT, ctl.areas, ctl.plan, MPCConfig(excursion_stop=None)).speed_cap(1.0) == vm
+
+
+def test_outside_its_box_at_speed_the_speed_bound_brakes_to_the_cap(l_case):
+    areas, plan = l_case
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
+    x = np.array([1.0, 0.5, 0.0])
+    ctl.reset(x)
+    ctl._ref_index = 5
+    ctl._turning = False
+    for k in range(12):  # get up to speed along R0
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=np.array([cmd.v, cmd.w]) if k else np.zeros(2)))
+        x = step_np(x, [cmd.v, cmd.w], ctl.dt)
+    v0 = cmd.v
+    assert v0 > 0.4
+    x_out = x + np.array([0.0, -0.58, 0.0])  # measured 10 cm below the shrunk R0 box (y >= 0.02)
+    cmd = ctl.step(Observation(t=1.2, pose=x_out, velocity=np.array([cmd.v, cmd.w])))
+    cap = ctl.speed_cap(0.02 - x_out[1])
+    ub = ctl.last.input_upper[:, 0]
+    a_dt = ctl.limits.a_max * ctl.dt
+    assert cap < v0
+    # each stage may go no faster than braking from v0 at the rate bound or the cap
+    assert np.all(ub <= np.maximum(cap, v0 - np.arange(1, ctl.N + 1) * a_dt) + 1e-12)
+    assert cmd.v <= v0 - a_dt + 1e-9 or cmd.v <= cap + 1e-9
+
+
+def test_fallback_brakes_when_the_previous_plan_no_longer_fits(l_case):
+    areas, plan = l_case
+    fail = {12}
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(), failure_injector=lambda k: k in fail)
+    x = np.array([0.5, 0.5, 0.0])
+    ctl.reset(x)
+    cmd = None
+    for k in range(12):
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=np.zeros(2)))
+        x = step_np(x, [cmd.v, cmd.w], ctl.dt)
+    v0, w0 = cmd.v, cmd.w
+    assert v0 > 0.4
+    # the robot turned out to be heading 40 deg to the right of where the plan thinks: the
+    # rest of the plan, rolled out from there, leaves R0 through its lower side
+    x_bad = x + np.array([0.0, -0.42, -0.7])
+    cmd = ctl.step(Observation(t=1.2, pose=x_bad, velocity=np.zeros(2)))
+    assert cmd.status == "fallback_stop" and not cmd.ok
+    assert cmd.v == pytest.approx(v0 - ctl.limits.a_max * ctl.dt)
+    assert abs(cmd.w - w0) <= ctl.limits.alpha_max * ctl.dt + 1e-9
+    assert cmd.w > w0  # it steers left, back into R0
+    # the same step with the paper-style fallback replays the old plan
+    old = SAMPC(ROBOT, areas, plan, MPCConfig(fallback_brake=False), failure_injector=lambda k: k in fail)
+    y = np.array([0.5, 0.5, 0.0])
+    old.reset(y)
+    for k in range(12):
+        c = old.step(Observation(t=0.1 * k, pose=y, velocity=np.zeros(2)))
+        y = step_np(y, [c.v, c.w], old.dt)
+    assert old.step(Observation(t=1.2, pose=x_bad, velocity=np.zeros(2))).status == "fallback_shift"
+
+
+def test_brake_plan_stops_at_the_rate_bounds(l_controller):
+    ctl = l_controller
+    ctl.reset(np.array([1.0, 0.5, 0.0]))
+    ctl._u_prev = np.array([1.2, 0.8])
+    u = ctl.brake_plan(np.array([1.0, 0.5, 0.0]))
+    a, al = ctl.limits.a_max * ctl.dt, ctl.limits.alpha_max * ctl.dt
+    np.testing.assert_allclose(u[:, 0], np.maximum(1.2 - a * np.arange(1, ctl.N + 1), 0.0))
+    assert np.all(np.abs(np.diff(np.concatenate(([[1.2, 0.8]], u)), axis=0)) <= [a, al] + np.array([1e-12, 1e-12]))
+    np.testing.assert_allclose(u[-1], [0.0, 0.0], atol=1e-12)
+
+
+def test_default_limits_are_deterministic(l_case):
+    assert MPCConfig().solve_budget_ms is None
+    areas, plan = l_case
+    runs = []
+    for _ in range(2):
+        ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
+        _, path, cmds = run_closed_loop(ctl, [0.5, 0.5, 0.0], plan.goal, areas.rects[plan.corridor], steps=60, delay=1)
+        runs.append(np.array([[c.v, c.w] for c in cmds]))
+    np.testing.assert_array_equal(runs[0], runs[1])

@@ -1,0 +1,114 @@
+"""Actuation monitor: delay and gain identification from the controller's own commands."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sanav_mj.control.monitor import ActuationMonitor, MonitorConfig
+
+
+def drive(monitor: ActuationMonitor, commands: np.ndarray, delay: int, gains=(1.0, 1.0)) -> None:
+    """Feed a plant that applies command k - delay at period k with the given gains."""
+    applied = [np.zeros(2)] * delay
+    last = np.zeros(2)  # velocity measured at the start of the step (response of the last period)
+    for u in commands:
+        monitor.update(last)
+        monitor.record(u)
+        applied.append(np.asarray(u, float))
+        last = applied.pop(0) * np.asarray(gains)
+
+
+def excitation(n: int, seed: int = 0) -> np.ndarray:
+    """(n, 2) varied commands (speeds 0-1.4 m/s, yaw rates +-2 rad/s), held for 1-4 steps."""
+    rng = np.random.default_rng(seed)
+    out, k = [], 0
+    while k < n:
+        hold = int(rng.integers(1, 5))
+        u = np.array([rng.uniform(0.0, 1.4), rng.uniform(-2.0, 2.0)])
+        out += [u] * hold
+        k += hold
+    return np.array(out[:n])
+
+
+@pytest.mark.parametrize("delay", [0, 1, 2, 3])
+def test_identifies_the_delay_and_unit_gains_exactly(delay):
+    mon = ActuationMonitor()
+    drive(mon, excitation(60), delay)
+    assert mon.delay == delay
+    np.testing.assert_allclose(mon.gains, [1.0, 1.0], atol=1e-9)
+    np.testing.assert_allclose(mon.residual, [0.0, 0.0], atol=1e-6)
+
+
+def test_identifies_geometry_gains_with_the_delay():
+    # wheel radius x1.1 and track x0.9: the plant drives 10 % faster and turns 22 % faster
+    mon = ActuationMonitor()
+    drive(mon, excitation(80, seed=1), delay=1, gains=(1.1, 1.1 / 0.9))
+    assert mon.delay == 1
+    np.testing.assert_allclose(mon.gains, [1.1, 1.1 / 0.9], rtol=1e-9)
+
+
+def test_gains_are_clamped():
+    mon = ActuationMonitor(MonitorConfig(gain_min=0.8, gain_max=1.2))
+    drive(mon, excitation(60), delay=0, gains=(0.5, 2.0))
+    np.testing.assert_allclose(mon.gains, [0.8, 1.2])
+    assert mon.residual[0] > 0.1  # what the clamped gains cannot explain shows as residual
+
+
+def test_pending_holds_the_commands_in_flight_oldest_first():
+    mon = ActuationMonitor()
+    cmds = excitation(40, seed=2)
+    drive(mon, cmds, delay=2)
+    assert mon.delay == 2
+    np.testing.assert_array_equal(mon.pending(), cmds[-2:])
+    mon.reset()
+    assert mon.delay == 0 and mon.pending().shape == (0, 2)
+    np.testing.assert_array_equal(mon.gains, [1.0, 1.0])
+
+
+def test_no_excitation_keeps_the_nominal_delay():
+    mon = ActuationMonitor(MonitorConfig(nominal_delay=1))
+    drive(mon, np.zeros((50, 2)), delay=3)  # standing still: nothing to learn from
+    assert mon.delay == 1
+    np.testing.assert_array_equal(mon.gains, [1.0, 1.0])
+
+
+def test_constant_cruise_does_not_switch_the_delay():
+    mon = ActuationMonitor()
+    cmds = np.concatenate((excitation(40, seed=3), np.tile([[1.0, 0.0]], (60, 1))))
+    drive(mon, cmds, delay=2)
+    assert mon.delay == 2
+
+
+def test_max_delay_zero_disables_identification():
+    mon = ActuationMonitor(MonitorConfig(max_delay=0))
+    drive(mon, excitation(60), delay=2)
+    assert mon.delay == 0 and mon.pending().shape == (0, 2)
+
+
+def test_non_finite_velocity_is_ignored():
+    mon = ActuationMonitor()
+    cmds = excitation(60, seed=4)
+    drive(mon, cmds, delay=1)
+    before = (mon.delay, mon.gains.copy(), mon.residual.copy())
+    mon.update(np.array([np.nan, 0.0]))
+    assert mon.delay == before[0]
+    np.testing.assert_array_equal(mon.gains, before[1])
+    np.testing.assert_array_equal(mon.residual, before[2])
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        (dict(max_delay=-1), "max_delay"),
+        (dict(max_delay=2, nominal_delay=3), "nominal_delay"),
+        (dict(forgetting=1.0), "forgetting"),
+        (dict(switch_ratio=0.0), "switch_ratio"),
+        (dict(min_excitation=0.0), "min_excitation"),
+        (dict(gain_min=1.1), "gain_min"),
+        (dict(half_track=float("nan")), "half_track"),
+    ],
+)
+def test_config_rejects_bad_values_naming_the_field(kw, match):
+    with pytest.raises(ValueError, match=f"MonitorConfig.{match}"):
+        MonitorConfig(**kw)
