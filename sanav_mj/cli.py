@@ -3,7 +3,11 @@
 Exit codes: 0 success; 1 a run ended without reaching the goal; 2 bad input (one line on
 stderr naming the file or argument and what is wrong, no traceback), which includes an output
 file or folder that cannot be created or written (``run`` prints its result line and writes
-its other outputs first); 130 interrupted; 141 stdout closed early (``| head``), quietly.
+its other outputs first) and a ``--resume`` into a folder run with other settings; 3
+``bench`` / ``robustness`` finished and wrote their outputs, but some runs raised an
+exception (rows with reason ``error``; one line on stderr says how many); 130 interrupted
+(``bench`` / ``robustness``: one line says how many runs are saved in the journal and how to
+resume); 141 stdout closed early (``| head``), quietly.
 """
 
 from __future__ import annotations
@@ -112,6 +116,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--workers", type=_count("--workers", 1, 64), default=2)
     b.add_argument("--out", type=Path, default=Path("out/bench"))
     b.add_argument("--rrd", action="store_true", help="also record each run to OUT/rrd/")
+    b.add_argument("--resume", action="store_true",
+                   help="keep the finished runs journalled in OUT/runs.jsonl (same settings) and run the rest")
 
     rb = sub.add_parser("robustness", help="sweep model mismatch over a grid with several seeds")
     rb.add_argument("scenarios", nargs="+")
@@ -125,6 +131,8 @@ def build_parser() -> argparse.ArgumentParser:
     rb.add_argument("--time-limit", type=_time_limit, default=60.0,
                     help="[s] simulated time limit of each run (default 60)")
     rb.add_argument("--out", type=Path, default=Path("out/robustness"))
+    rb.add_argument("--resume", action="store_true",
+                    help="keep the finished runs journalled in OUT/runs.jsonl (same settings) and run the rest")
     return p
 
 
@@ -308,10 +316,25 @@ def _cmd_bench(args) -> int:
 
     _check_scenarios(args.scenarios)
     _check_out_dir(args.out)
-    summary = run_bench(args.scenarios, args.controllers, args.runs, args.workers, args.out, record=args.rrd)
+    summary = run_bench(args.scenarios, args.controllers, args.runs, args.workers, args.out, record=args.rrd,
+                        resume=args.resume)
     print(markdown_table(summary), end="")
     print(f"wrote {args.out}/results.csv, table.md, success.png")
-    return 0
+    return _raised_runs(summary, args.out / "results.csv")
+
+
+#: exit code of a campaign that finished but had runs that raised (see the module docstring)
+EXIT_RUNS_RAISED = 3
+
+
+def _raised_runs(summary: list[dict], csv_path: Path) -> int:
+    """Report the runs that raised (one line on stderr); the exit code of the campaign."""
+    raised = sum(int(row.get("errors", 0)) for row in summary)
+    if not raised:
+        return 0
+    print(f"sanav-mj: {raised} run(s) raised; see the rows with reason 'error' in {csv_path} "
+          "(left out of the rates; --resume runs them again)", file=sys.stderr)
+    return EXIT_RUNS_RAISED
 
 
 def _parse_fixed(items: list[str], sweep: list[tuple[str, list[float]]]):
@@ -339,15 +362,16 @@ def _cmd_robustness(args) -> int:
     _check_scenarios(args.scenarios)
     _check_out_dir(args.out)
     summary = run_robustness(args.scenarios, sweep, args.seeds, args.controller, args.workers, args.out,
-                             time_limit_s=args.time_limit, fixed=fixed)
+                             time_limit_s=args.time_limit, fixed=fixed, resume=args.resume)
     for row in summary:
         print("  ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
     print(f"wrote {args.out}/robustness.csv, summary.csv and heat maps")
-    return 0
+    return _raised_runs(summary, args.out / "robustness.csv")
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``sanav-mj`` console script; returns the exit code."""
+    from sanav_mj.eval.campaign import CampaignInterrupted, JournalError
     from sanav_mj.scene import ScenarioError
     from sanav_mj.sim.mismatch import MismatchError
 
@@ -361,7 +385,7 @@ def main(argv: list[str] | None = None) -> int:
             "robustness": _cmd_robustness,
         }[args.command]
         return handler(args)
-    except (BadInput, ScenarioError, MismatchError) as exc:
+    except (BadInput, ScenarioError, MismatchError, JournalError) as exc:
         print(f"sanav-mj: error: {_one_line(str(exc))}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # stdout closed early (``sanav-mj ... | head``): stop quietly, as a shell tool
@@ -374,6 +398,11 @@ def main(argv: list[str] | None = None) -> int:
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"sanav-mj: error: {where}{_one_line(exc.strerror or str(exc))}", file=sys.stderr)
         return 2
+    except CampaignInterrupted as exc:
+        where = f" in {exc.journal}" if exc.journal else ""
+        print(f"sanav-mj: interrupted: {exc.saved} of {exc.total} runs saved{where}; "
+              "run the same command with --resume to finish", file=sys.stderr)
+        return 130
     except KeyboardInterrupt:
         print("sanav-mj: interrupted", file=sys.stderr)
         return 130

@@ -81,10 +81,10 @@ def _read_rows(path: Path) -> list[dict]:
             row = dict(r)
             row["success"] = r["success"] == "True"
             for k in ("steps", "collisions", "seed"):
-                row[k] = int(r[k])
+                row[k] = int(r[k]) if r[k] != "" else None  # empty in the row of a run that raised
             for k in r:
                 if k.endswith("_ms"):
-                    row[k] = float(r[k])
+                    row[k] = float(r[k]) if r[k] != "" else None
             rows.append(row)
     return rows
 
@@ -100,7 +100,8 @@ def side_by_side(summary: list[dict]) -> str:
         cells = []
         for c in CONTROLLERS:
             paper = PAPER_TABLE1[(sc, c)][3] if (sc, c) in PAPER_TABLE1 else PAPER_FIG6.get(sc, {}).get(c)
-            ours = "-" if (sc, c) not in by else f"{by[(sc, c)]['success_rate']:.0f}"
+            rate = by[(sc, c)]["success_rate"] if (sc, c) in by else None  # None: every run raised
+            ours = "-" if rate is None else f"{rate:.0f}"
             cells.append(f"{'-' if paper is None else paper} / {ours}")
         out.append(f"| {sc} | " + " | ".join(cells) + " |")
     out += ["", "| scenario | method | mean (ms) paper / ours | max (ms) paper / ours | steps paper / ours |",

@@ -128,7 +128,7 @@ def test_robustness_fixed_and_time_limit_reach_every_run(tmp_path, capsys, monke
 
     seen = []
 
-    def fake_run_jobs(jobs, workers, desc):
+    def fake_run_jobs(jobs, workers, desc, **kw):
         seen.extend(jobs)
         return [_fake_doc(j) for j in jobs]
 
@@ -152,7 +152,7 @@ def test_robustness_defaults_without_fixed(tmp_path, capsys, monkeypatch):
     from sanav_mj.eval import robustness
 
     seen = []
-    monkeypatch.setattr(robustness, "run_jobs", lambda jobs, workers, desc: seen.extend(jobs) or
+    monkeypatch.setattr(robustness, "run_jobs", lambda jobs, workers, desc, **kw: seen.extend(jobs) or
                         [_fake_doc(j) for j in jobs])
     code, _, err = _run(["robustness", "single_rect", "--seeds", "1", "--out", str(tmp_path / "rb")], capsys)
     assert code == 0, err
@@ -246,3 +246,70 @@ def test_closed_stdout_stops_quietly():
     err = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == 141
     assert err == ""
+
+
+# --------------------------------------------------------------------------- campaigns: journal, resume, errors
+
+
+def _messages(err):
+    """The sanav-mj lines of stderr (the progress bar writes there too)."""
+    return [line for line in err.replace("\r", "\n").splitlines() if line.startswith("sanav-mj")]
+
+
+@pytest.fixture
+def fake_campaign(monkeypatch):
+    """Runs are :func:`_fake_doc` (seed 1 raises); ``state["interrupt_at"]``: the call that gets Ctrl-C."""
+    from sanav_mj.eval import campaign
+
+    state = {"calls": 0, "interrupt_at": None, "finished": []}
+
+    def run(job):
+        state["calls"] += 1
+        if state["calls"] == state["interrupt_at"]:
+            raise KeyboardInterrupt
+        if job.seed == 1:
+            raise RuntimeError("worker fell over")
+        state["finished"].append(campaign.job_key(job))
+        return _fake_doc(job)
+
+    monkeypatch.setattr(campaign, "run_job", run)
+    return state
+
+
+@pytest.mark.parametrize("command", [["bench", "single_rect", "--controllers", "dwa", "mpc", "--runs", "3"],
+                                     ["robustness", "single_rect", "--sweep", "delay=0,1", "--seeds", "3"]])
+def test_campaign_interrupt_resume_and_raised_runs(tmp_path, capsys, fake_campaign, command):
+    out = tmp_path / "o"
+    argv = command + ["--workers", "1", "--out", str(out)]
+    fake_campaign["interrupt_at"] = 4
+    code, stdout, err = _run(argv, capsys)
+    assert code == 130 and "Traceback" not in err
+    assert _messages(err) == [(f"sanav-mj: interrupted: 3 of 6 runs saved in {out / 'runs.jsonl'}; "
+                              "run the same command with --resume to finish")]
+    assert len((out / "runs.jsonl").read_text().splitlines()) == 3
+
+    # --resume: only the other runs; seed 1 raised, so it runs again (and raises again): exit 3
+    fake_campaign.update(calls=0, interrupt_at=None)
+    code, stdout, err = _run(argv + ["--resume"], capsys)
+    csv_name = "results.csv" if command[0] == "bench" else "robustness.csv"
+    assert code == 3
+    assert _messages(err) == [(f"sanav-mj: 2 run(s) raised; see the rows with reason 'error' in {out / csv_name} "
+                              "(left out of the rates; --resume runs them again)")]
+    assert len(fake_campaign["finished"]) == len(set(fake_campaign["finished"])) == 4
+    assert "wrote" in stdout
+    rows = (out / csv_name).read_text().splitlines()
+    assert len(rows) == 7 and sum("RuntimeError: worker fell over" in r for r in rows) == 2
+
+    # other settings: one line, exit 2, nothing run
+    fake_campaign["finished"].clear()
+    other = [a if a != "3" else "2" for a in argv]  # --runs / --seeds 2
+    code, _, err = _run(other + ["--resume"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err
+    assert err.startswith(f"sanav-mj: error: --resume: {out} was run with runs=3, this command has runs=2")
+    assert fake_campaign["finished"] == []
+
+    # a journal line that is not one (not the last): one line, exit 2
+    journal = out / "runs.jsonl"
+    journal.write_text("{oops\n" + journal.read_text())
+    code, _, err = _run(argv + ["--resume"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "runs.jsonl:1: not a journal line" in err

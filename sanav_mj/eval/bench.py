@@ -4,7 +4,14 @@ Every (scenario, controller, seed) is one episode through the same runner; seeds
 the initial yaw. Outputs in ``--out``: ``results.csv`` (one row per run), ``table.md`` (per
 scenario and method: solve and full-pipeline ms mean/max/std pooled over all steps of all
 runs, mean steps of the successful runs, success %, runs with a collision),
-``success.png`` (grouped bars) and ``meta.json`` (what was run, where and on which commit).
+``success.png`` (grouped bars), ``meta.json`` (what was run, where and on which commit; written
+before the runs and again at the end) and ``runs.jsonl``, the journal of finished runs that
+``resume=True`` (``sanav-mj bench --resume``) continues from (see :mod:`sanav_mj.eval.campaign`).
+
+A run that raised (a failure of the tool, not of the controller) is a row with reason
+``error`` and the message in the ``error`` column of ``results.csv``; the summary counts it
+apart (``errors``) and leaves it out of ``runs``, the success and collision rates and the
+timing.
 
 What the timing columns hold (see :mod:`sanav_mj.eval.metrics` and
 :mod:`sanav_mj.eval.episode`): ``solve`` is the controller's own report per step
@@ -24,23 +31,42 @@ import platform
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
-from sanav_mj.eval.campaign import Job, run_jobs
+from sanav_mj.eval.campaign import (
+    JOURNAL_NAME,
+    Job,
+    check_meta,
+    is_error,
+    read_journal,
+    run_jobs,
+)
 
 CSV_COLUMNS = (
     "scenario", "controller", "seed", "success", "reason", "steps", "sim_time_s", "path_length_m",
     "min_clearance_m", "collisions", "safe_area_violations", "solver_failures",
     "solve_mean_ms", "solve_max_ms", "solve_std_ms", "solve_p99_ms",
-    "pipeline_mean_ms", "pipeline_max_ms", "pipeline_std_ms",
+    "pipeline_mean_ms", "pipeline_max_ms", "pipeline_std_ms", "error",
 )
+
+#: meta.json keys that must match for ``--resume`` (missing counts as None): they decide the
+#: jobs and what the results mean; workers, commit, machine and dates may differ
+RESUME_SETTINGS = ("command", "scenarios", "controllers", "runs", "time_limit_s", "sweep", "fixed")
 
 
 def flatten(doc: dict[str, Any]) -> dict[str, Any]:
-    """One CSV row from a run JSON document (without trace)."""
+    """One CSV row from a run JSON document (without trace).
+
+    The row of a run that raised (:func:`sanav_mj.eval.campaign.is_error`) keeps its
+    scenario, controller, seed, success (False), reason (``error``) and ``error`` message and
+    has no metrics.
+    """
     row = {k: doc.get(k) for k in CSV_COLUMNS if k in doc}
+    if is_error(doc):
+        return row
     row["solve_mean_ms"] = doc["solve_ms"]["mean"]
     row["solve_max_ms"] = doc["solve_ms"]["max"]
     row["solve_std_ms"] = doc["solve_ms"]["std"]
@@ -58,9 +84,9 @@ def pooled(rows: Sequence[dict[str, Any]], prefix: str) -> tuple[float, float, f
     :func:`sanav_mj.eval.metrics.timing_stats`), ``{prefix}_max_ms`` and ``steps`` (the
     number of samples): the pooled second moment is the step-weighted mean of
     ``std^2 + mean^2``. Runs without steps carry no samples and are left out (all zeros
-    when no run has one).
+    when no run has one), and so are the rows of runs that raised.
     """
-    rows = [r for r in rows if int(r["steps"]) > 0]
+    rows = [r for r in rows if not is_error(r) and int(r["steps"]) > 0]
     n = sum(int(r["steps"]) for r in rows)
     if n == 0:
         return 0.0, 0.0, 0.0
@@ -76,16 +102,21 @@ def summarise(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     ``pipeline_{mean,max,std}_ms`` [ms] pooled over all steps (:func:`pooled`); ``steps``
     mean steps of the successful runs (None when none succeeded); ``success_rate`` [%];
     ``collision_runs`` runs with at least one robot-obstacle contact and
-    ``collision_rate`` [%] of them; ``reasons`` the outcome counts, e.g. ``"goal 9, stuck 1"``.
+    ``collision_rate`` [%] of them; ``reasons`` the outcome counts, e.g. ``"goal 9, stuck 1"``;
+    ``errors`` the runs that raised. Those are failures of the tool, not of the controller:
+    they are not in ``runs``, the rates, the timing or ``reasons`` (the rates are None when
+    every run of the pair raised).
     """
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for r in rows:
         groups.setdefault((r["scenario"], r["controller"]), []).append(r)
     out = []
-    for (scenario, controller), rs in groups.items():
+    for (scenario, controller), all_rows in groups.items():
+        rs = [r for r in all_rows if not is_error(r)]
         sm, sx, ss = pooled(rs, "solve")
         pm, px, ps = pooled(rs, "pipeline")
         ok = [r for r in rs if r["success"]]
+        collided = sum(int(r["collisions"]) > 0 for r in rs)
         out.append({
             "scenario": scenario,
             "controller": controller,
@@ -93,10 +124,11 @@ def summarise(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
             "solve_mean_ms": sm, "solve_max_ms": sx, "solve_std_ms": ss,
             "pipeline_mean_ms": pm, "pipeline_max_ms": px, "pipeline_std_ms": ps,
             "steps": (sum(r["steps"] for r in ok) / len(ok)) if ok else None,
-            "success_rate": 100.0 * len(ok) / len(rs),
-            "collision_runs": sum(int(r["collisions"]) > 0 for r in rs),
-            "collision_rate": 100.0 * sum(int(r["collisions"]) > 0 for r in rs) / len(rs),
+            "success_rate": 100.0 * len(ok) / len(rs) if rs else None,
+            "collision_runs": collided,
+            "collision_rate": 100.0 * collided / len(rs) if rs else None,
             "reasons": _reasons(rs),
+            "errors": len(all_rows) - len(rs),
         })
     return out
 
@@ -116,16 +148,29 @@ TABLE_HEADER = (
 
 
 def markdown_table(summary: Sequence[dict[str, Any]]) -> str:
-    """The timing/success table in Markdown (the paper's Table I layout), one row per summary row."""
+    """The timing/success table in Markdown (the paper's Table I layout), one row per summary row.
+
+    Runs that raised (``errors``) show as ``runs (+N raised)`` and add a note below the
+    table: they are left out of every other column.
+    """
     lines = ["| " + " | ".join(TABLE_HEADER) + " |", "|" + "---|" * len(TABLE_HEADER)]
     for s in summary:
         steps = "-" if s["steps"] is None else f"{s['steps']:.0f}"
+        success = "-" if s["success_rate"] is None else f"{s['success_rate']:.0f}"
+        errors = s.get("errors", 0)
+        runs = f"{s['runs']} (+{errors} raised)" if errors else f"{s['runs']}"
         lines.append(
-            f"| {s['scenario']} | {s['controller']} | {s['runs']} | {s['solve_mean_ms']:.2f} / {s['solve_max_ms']:.2f} / "
+            f"| {s['scenario']} | {s['controller']} | {runs} | {s['solve_mean_ms']:.2f} / {s['solve_max_ms']:.2f} / "
             f"{s['solve_std_ms']:.2f} | {s['pipeline_mean_ms']:.2f} / {s['pipeline_max_ms']:.2f} / "
-            f"{s['pipeline_std_ms']:.2f} | {steps} | {s['success_rate']:.0f} | {s['collision_runs']} "
+            f"{s['pipeline_std_ms']:.2f} | {steps} | {success} | {s['collision_runs']} "
             f"| {s['reasons']} |"
         )
+    raised = sum(s.get("errors", 0) for s in summary)
+    if raised:
+        note = (f"{raised} run(s) raised an exception (reason `error` in results.csv, with the message in "
+                "its `error` column): failures of the tool, not of the controller, left out of runs, "
+                "success %, collisions, timing and outcomes.")
+        lines += ["", note]
     return "\n".join(lines) + "\n"
 
 
@@ -199,6 +244,28 @@ def run_metadata(scenarios: Sequence[str], controllers: Sequence[str], runs: int
     }
 
 
+def begin_campaign(out: Path, meta: dict[str, Any], resume: bool) -> None:
+    """Write ``out/meta.json`` before the runs; with ``resume`` and a journal in ``out``, first
+    check that the folder was run with the same :data:`RESUME_SETTINGS`.
+
+    The earlier sessions of a resumed folder are kept in ``meta["earlier_sessions"]``
+    (commit, dirty, date, wall time of each), so a folder measured on two commits says so.
+    ``meta["wall_time_s"]`` is None until the campaign ends.
+
+    Raises:
+        sanav_mj.eval.campaign.JournalError: the journal is unreadable, or ``meta.json`` is
+            missing or differs in a setting.
+    """
+    path = out / "meta.json"
+    if resume and read_journal(out / JOURNAL_NAME):
+        check_meta(path, {k: meta.get(k) for k in RESUME_SETTINGS})
+        previous = json.loads(path.read_text())
+        meta["earlier_sessions"] = list(previous.get("earlier_sessions", [])) + [
+            {k: previous.get(k) for k in ("commit", "dirty", "dirty_files", "date_utc", "wall_time_s")}]
+    meta["wall_time_s"] = None
+    path.write_text(json.dumps(meta, indent=1))
+
+
 def run_bench(
     scenarios: list[str],
     controllers: list[str],
@@ -207,6 +274,7 @@ def run_bench(
     out: Path,
     record: bool = False,
     time_limit_s: float = 60.0,
+    resume: bool = False,
 ) -> list[dict[str, Any]]:
     """Run the comparison and write ``results.csv``, ``table.md`` and ``success.png`` in ``out``.
 
@@ -218,12 +286,21 @@ def run_bench(
         out: output folder (created).
         record: also write one ``.rrd`` per run to ``out/rrd``.
         time_limit_s: [s] simulated time limit of each run.
+        resume: keep the finished runs of ``out/runs.jsonl`` (an interrupted campaign with
+            the same settings) and run only the others; the outputs are the same as those of
+            an uninterrupted campaign. Without it the journal starts empty.
 
     Returns:
-        The per (scenario, controller) summary rows (also written to ``table.md``).
+        The per (scenario, controller) summary rows (also written to ``table.md``); their
+        ``errors`` count the runs that raised.
 
-    Also writes ``meta.json`` (:func:`run_metadata` plus the wall time of the campaign and
-    the load average at its end: the timings are wall times on a possibly shared machine).
+    Also writes ``meta.json`` (:func:`run_metadata` plus ``command`` = "bench", the wall
+    time of this session and the load average at its end: the timings are wall times on a
+    possibly shared machine; see :func:`begin_campaign`) and the journal ``runs.jsonl``.
+
+    Raises:
+        sanav_mj.eval.campaign.JournalError: ``resume`` into a folder run with other settings.
+        sanav_mj.eval.campaign.CampaignInterrupted: Ctrl-C; finished runs are in the journal.
     """
     from sanav_mj.eval.plots import plot_success_bars
     from sanav_mj.resources import builtin_scenarios
@@ -242,17 +319,20 @@ def run_bench(
         )
         for s in names for c in controllers for k in range(runs)
     ]
-    meta = run_metadata(names, controllers, runs, workers, time_limit_s)
+    meta = {"command": "bench", **run_metadata(names, controllers, runs, workers, time_limit_s)}
+    begin_campaign(out, meta, resume)
     t0 = time.perf_counter()
-    rows = [flatten(d) for d in run_jobs(jobs, workers, desc="bench")]
+    rows = [flatten(d) for d in run_jobs(jobs, workers, desc="bench", journal=out / JOURNAL_NAME, resume=resume)]
     meta["wall_time_s"] = time.perf_counter() - t0
     meta["load_average_end"] = _load_average()
     write_csv(rows, out / "results.csv")
     (out / "meta.json").write_text(json.dumps(meta, indent=1))
     summary = summarise(rows)
     (out / "table.md").write_text(markdown_table(summary))
-    plot_success_bars(
-        [{"scenario": s["scenario"], "controller": s["controller"], "success_rate": s["success_rate"]} for s in summary],
-        out / "success.png",
-    )
+    rated = [{"scenario": s["scenario"], "controller": s["controller"], "success_rate": s["success_rate"]}
+             for s in summary if s["success_rate"] is not None]
+    if rated:  # pairs whose every run raised leave a gap
+        plot_success_bars(rated, out / "success.png")
+    else:  # no rate at all: no figure (and none left from an earlier campaign)
+        (out / "success.png").unlink(missing_ok=True)
     return summary

@@ -3,9 +3,14 @@
 Outputs in ``--out``: ``robustness.csv`` (one row per run, with the swept values and the
 run's whole mismatch, fixed keys included), ``summary.csv`` (one row per grid point: success
 rate, collision rate, min clearance, reasons), heat maps ``success_rate.png``,
-``collision_rate.png``, ``min_clearance.png`` (titled with the fixed mismatch) and
+``collision_rate.png``, ``min_clearance.png`` (titled with the fixed mismatch),
 ``meta.json``: what the folder ran under (scenarios, controller, seeds, time limit, the
-sweep, the fixed mismatch, commit, machine, load, wall time; see :func:`run_robustness`).
+sweep, the fixed mismatch, commit, machine, load, wall time; see :func:`run_robustness`)
+and ``runs.jsonl``, the journal of finished runs that ``resume=True`` continues from.
+
+A run that raised (a failure of the tool) is a row with reason ``error`` and its message in
+the ``error`` column; each grid point counts those in ``errors`` and leaves them out of
+``runs`` and of the rates and clearance (a point where every run raised is blank, "n/a").
 """
 
 from __future__ import annotations
@@ -19,8 +24,15 @@ from typing import Any
 
 import numpy as np
 
-from sanav_mj.eval.bench import CSV_COLUMNS, _load_average, flatten, run_metadata, write_csv
-from sanav_mj.eval.campaign import Job, run_jobs
+from sanav_mj.eval.bench import (
+    CSV_COLUMNS,
+    _load_average,
+    begin_campaign,
+    flatten,
+    run_metadata,
+    write_csv,
+)
+from sanav_mj.eval.campaign import JOURNAL_NAME, Job, is_error, run_jobs
 from sanav_mj.sim.mismatch import Mismatch, MismatchError, mismatch_keys
 
 
@@ -69,6 +81,7 @@ def run_robustness(
     out: Path,
     time_limit_s: float = 60.0,
     fixed: Mismatch = Mismatch(),
+    resume: bool = False,
 ) -> list[dict[str, Any]]:
     """Run the sweep and write CSVs and heat maps into ``out``.
 
@@ -83,18 +96,27 @@ def run_robustness(
         fixed: mismatch applied at every grid point in addition to the swept keys (e.g. a
             sweep of friction x delay on a robot whose wheels are also 10 % small); it may
             not set a swept key.
+        resume: keep the finished runs of ``out/runs.jsonl`` (an interrupted sweep with the
+            same settings) and run only the others; the outputs are the same as those of an
+            uninterrupted sweep. Without it the journal starts empty.
 
     Returns:
-        One summary row per grid point.
+        One summary row per grid point: the swept value(s), ``runs`` (that ran to an
+        outcome), ``errors`` (runs that raised), ``success_rate`` and ``collision_rate`` [%]
+        (NaN when no run of the point ran to an outcome), ``min_clearance_m`` [m] and
+        ``reasons``.
 
     Also writes ``meta.json``: :func:`sanav_mj.eval.bench.run_metadata` (scenarios,
     ``controllers`` = [controller], ``runs`` = seeds, workers, ``time_limit_s``, commit,
-    machine, versions, load) plus ``sweep`` ({key: [values]}), ``fixed`` ({key: value},
-    the keys of ``fixed`` that differ from no mismatch), ``wall_time_s`` and
-    ``load_average_end``.
+    machine, versions, load) plus ``command`` = "robustness", ``sweep`` ({key: [values]}),
+    ``fixed`` ({key: value}, the keys of ``fixed`` that differ from no mismatch),
+    ``wall_time_s`` (of this session) and ``load_average_end``; it is written before the
+    runs too, so an interrupted folder says what it ran.
 
     Raises:
         MismatchError: ``fixed`` sets a swept key.
+        sanav_mj.eval.campaign.JournalError: ``resume`` into a folder run with other settings.
+        sanav_mj.eval.campaign.CampaignInterrupted: Ctrl-C; finished runs are in the journal.
     """
     from sanav_mj.eval.plots import plot_heatmap
     from sanav_mj.scene import load_scenario
@@ -116,13 +138,12 @@ def run_robustness(
                 for k in range(seeds):
                     jobs.append(Job(s, controller, k, tuple(items), time_limit_s, None,
                                     ((xk, x),) + (((yk, y),) if yk else ()) + (("_cell", (yi, xi)),)))
-    meta = run_metadata(scenarios, [controller], seeds, workers, time_limit_s)
+    meta = {"command": "robustness", **run_metadata(scenarios, [controller], seeds, workers, time_limit_s)}
     meta["sweep"] = {k: [float(v) for v in vals] for k, vals in sweep}
     meta["fixed"] = dict(base)
-    meta["wall_time_s"] = None  # written before the runs too, so an interrupted folder says what it ran
-    (out / "meta.json").write_text(json.dumps(meta, indent=1))
+    begin_campaign(out, meta, resume)
     t0 = time.perf_counter()
-    docs = run_jobs(jobs, workers, desc="robustness")
+    docs = run_jobs(jobs, workers, desc="robustness", journal=out / JOURNAL_NAME, resume=resume)
     meta["wall_time_s"] = time.perf_counter() - t0
     meta["load_average_end"] = _load_average()
     (out / "meta.json").write_text(json.dumps(meta, indent=1))
@@ -143,26 +164,32 @@ def run_robustness(
     collision = np.zeros(shape)
     clearance = np.full(shape, np.inf)
     count = np.zeros(shape)
+    errors = np.zeros(shape, dtype=int)
     for r in rows:
         yi, xi = r["_cell"]
+        if is_error(r):
+            errors[yi, xi] += 1
+            continue
         count[yi, xi] += 1
         success[yi, xi] += bool(r["success"])
         collision[yi, xi] += r["collisions"] > 0
         if r["min_clearance_m"] is not None:
             clearance[yi, xi] = min(clearance[yi, xi], r["min_clearance_m"])
-    success = 100 * success / np.maximum(count, 1)
-    collision = 100 * collision / np.maximum(count, 1)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a point whose every run raised: NaN
+        success = np.where(count > 0, 100 * success / np.maximum(count, 1), np.nan)
+        collision = np.where(count > 0, 100 * collision / np.maximum(count, 1), np.nan)
+        clearance = np.where(count > 0, clearance, np.nan)
     summary = []
     for yi, y in enumerate(yv):
         for xi, x in enumerate(xv):
-            cell = [r for r in rows if tuple(r["_cell"]) == (yi, xi)]
+            cell = [r for r in rows if tuple(r["_cell"]) == (yi, xi) and not is_error(r)]
             reasons: dict[str, int] = {}
             for r in cell:
                 reasons[r["reason"]] = reasons.get(r["reason"], 0) + 1
             row = {xk: x}
             if yk:
                 row[yk] = y
-            row.update(runs=int(count[yi, xi]), success_rate=float(success[yi, xi]),
+            row.update(runs=int(count[yi, xi]), errors=int(errors[yi, xi]), success_rate=float(success[yi, xi]),
                        collision_rate=float(collision[yi, xi]), min_clearance_m=float(clearance[yi, xi]),
                        reasons=", ".join(f"{k} {v}" for k, v in sorted(reasons.items())))
             summary.append(row)

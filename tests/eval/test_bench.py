@@ -8,7 +8,13 @@ import json
 import numpy as np
 import pytest
 
-from sanav_mj.eval.bench import TABLE_HEADER, markdown_table, pooled, run_bench, summarise
+from sanav_mj.eval.bench import (
+    TABLE_HEADER,
+    markdown_table,
+    pooled,
+    run_bench,
+    summarise,
+)
 
 
 def _row(samples_solve, samples_pipe, **kw):
@@ -112,3 +118,122 @@ def test_tiny_real_bench_writes_the_three_outputs(tmp_path):
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
     meta = json.loads((tmp_path / "meta.json").read_text())
     assert meta["controllers"] == ["dwa", "dqn"] and meta["seeds"] == [0] and meta["wall_time_s"] > 0
+
+
+# --------------------------------------------------------------------------- journal, resume, runs that raise
+
+
+def _fake_doc(job):
+    """A run document that is a known function of the job (no simulation); seed 1 of dwa raises."""
+    if job.controller == "dwa" and job.seed == 1:
+        raise RuntimeError("solver exploded\nbadly")
+    k = job.seed + (10 if job.controller == "dwa" else 0)
+    stats = {"mean": 1.0 + 0.1 * k, "max": 2.0 + k, "std": 0.5, "p50": 1.0, "p99": 2.0}
+    return {
+        "scenario": job.scenario, "controller": job.controller, "seed": job.seed, "success": k % 3 != 2,
+        "reason": "goal" if k % 3 != 2 else "stuck", "steps": 10 + k, "sim_time_s": 1.0 + k, "path_length_m": 2.0,
+        "min_clearance_m": 0.1 + 0.01 * k, "collisions": 0, "safe_area_violations": 0, "solver_failures": 0,
+        "solve_ms": stats, "pipeline_ms": stats, "mismatch": {},
+    }
+
+
+@pytest.fixture
+def fake_runs(monkeypatch):
+    """Replace the simulation by :func:`_fake_doc`; returns the list of jobs whose run finished."""
+    from sanav_mj.eval import campaign
+
+    finished = []
+    state = {"interrupt_at": None, "calls": 0}
+
+    def run(job):
+        state["calls"] += 1
+        if state["calls"] == state["interrupt_at"]:
+            raise KeyboardInterrupt
+        doc = _fake_doc(job)
+        finished.append((job.scenario, job.controller, job.seed))
+        return doc
+
+    monkeypatch.setattr(campaign, "run_job", run)
+    return finished, state
+
+
+OUTPUTS = ("results.csv", "table.md", "success.png")
+
+
+def test_resume_runs_no_job_twice_and_equals_an_uninterrupted_bench(tmp_path, fake_runs):
+    from sanav_mj.eval.campaign import CampaignInterrupted, read_journal
+
+    finished, state = fake_runs
+    args = (["single_rect", "u_shape"], ["sa-mpc", "dwa"], 3)
+    whole = run_bench(*args, workers=1, out=tmp_path / "whole")
+    assert len(finished) == 2 * 2 * 3 - 2  # dwa seed 1 raises in both scenarios
+    finished.clear()
+
+    state.update(calls=0, interrupt_at=6)
+    out = tmp_path / "resumed"
+    with pytest.raises(CampaignInterrupted) as info:
+        run_bench(*args, workers=1, out=out)
+    assert (info.value.saved, info.value.total) == (5, 12)
+    assert len(read_journal(out / "runs.jsonl")) == 5
+    assert not (out / "results.csv").exists()
+    assert json.loads((out / "meta.json").read_text())["wall_time_s"] is None  # written before the runs
+    first = list(finished)
+
+    state.update(calls=0, interrupt_at=None)
+    resumed = run_bench(*args, workers=1, out=out, resume=True)
+    # no finished run ran again (the one that raised is run again, and raises again)
+    assert len(finished) == len(set(finished)) == len(first) + 6
+    assert resumed == whole
+    for name in OUTPUTS:
+        assert (out / name).read_bytes() == (tmp_path / "whole" / name).read_bytes(), name
+    meta = json.loads((out / "meta.json").read_text())
+    assert len(meta["earlier_sessions"]) == 1 and meta["earlier_sessions"][0]["wall_time_s"] is None
+
+
+def test_runs_that_raise_are_rows_counted_apart(tmp_path, fake_runs):
+    summary = run_bench(["single_rect"], ["dwa"], 5, workers=1, out=tmp_path)
+    (s,) = summary
+    assert (s["runs"], s["errors"]) == (4, 1)
+    # seeds 0, 2, 3, 4 (k = 10, 12, 13, 14): goal, goal, goal, stuck; seed 1 is not a failure of dwa
+    assert s["success_rate"] == 75.0 and s["reasons"] == "goal 3, stuck 1"
+    assert s["steps"] == (20 + 22 + 23) / 3
+    with open(tmp_path / "results.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    bad = rows[1]
+    assert (bad["seed"], bad["success"], bad["reason"]) == ("1", "False", "error")
+    assert bad["error"] == "RuntimeError: solver exploded badly"
+    assert bad["steps"] == "" and bad["solve_mean_ms"] == ""
+    assert rows[0]["error"] == ""
+    table = (tmp_path / "table.md").read_text()
+    assert "| single_rect | dwa | 4 (+1 raised) |" in table
+    assert "1 run(s) raised an exception" in table
+
+
+def test_a_pair_whose_runs_all_raise_has_no_rate(tmp_path, fake_runs, monkeypatch):
+    from sanav_mj.eval import campaign
+
+    def boom(job):
+        raise OSError("disk gone")
+
+    monkeypatch.setattr(campaign, "run_job", boom)
+    (s,) = run_bench(["single_rect"], ["dwa"], 2, workers=1, out=tmp_path)
+    assert (s["runs"], s["errors"], s["success_rate"], s["collision_rate"]) == (0, 2, None, None)
+    assert "| single_rect | dwa | 0 (+2 raised) |" in (tmp_path / "table.md").read_text()
+    assert not (tmp_path / "success.png").exists()
+
+
+def test_resume_refuses_other_settings(tmp_path, fake_runs):
+    from sanav_mj.eval.campaign import JournalError
+
+    run_bench(["single_rect"], ["sa-mpc"], 2, workers=1, out=tmp_path)
+    before = (tmp_path / "meta.json").read_text()
+    for kwargs, fragment in (({"runs": 3}, "runs=2"), ({"controllers": ["dwa"]}, "controllers="),
+                             ({"time_limit_s": 30.0}, "time_limit_s=60.0")):
+        args = {"scenarios": ["single_rect"], "controllers": ["sa-mpc"], "runs": 2} | kwargs
+        with pytest.raises(JournalError, match=fragment):
+            run_bench(**args, workers=1, out=tmp_path, resume=True)
+    assert (tmp_path / "meta.json").read_text() == before
+    # a journal without its meta.json cannot be checked
+    (tmp_path / "meta.json").unlink()
+    with pytest.raises(JournalError, match="missing"):
+        run_bench(["single_rect"], ["sa-mpc"], 2, workers=1, out=tmp_path, resume=True)

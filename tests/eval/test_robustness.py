@@ -109,7 +109,7 @@ def _fake_doc(job):
 def test_two_key_aggregation_known_answers(tmp_path, monkeypatch):
     seen = []
 
-    def fake_run_jobs(jobs, workers, desc):
+    def fake_run_jobs(jobs, workers, desc, **kw):
         seen.extend(jobs)
         return [_fake_doc(j) for j in jobs]
 
@@ -280,3 +280,91 @@ def test_solve_budget_reaches_the_solver():
     ctrl = make_controller("sa-mpc", prep.scenario, prep.grid, prep.areas, prep.plan, solve_budget_ms=0.5)
     assert ctrl.config.solve_budget_ms == 0.5
     assert ctrl.config.solver_settings().budget_ms == 0.5
+
+
+# --------------------------------------------------------------------------- journal, resume, runs that raise
+
+OUTPUTS = ("robustness.csv", "summary.csv", *PNGS)
+
+
+def _sweep_args(out, **kw):
+    return {"scenarios": ["single_rect"], "sweep": parse_sweep(["mass=1,2", "delay=0,1"]), "seeds": 3,
+            "controller": "sa-mpc", "workers": 1, "out": out, "fixed": parse_mismatch(["friction=0.5"])} | kw
+
+
+def test_resumed_sweep_equals_an_uninterrupted_one(tmp_path, monkeypatch):
+    from sanav_mj.eval import campaign
+    from sanav_mj.eval.campaign import CampaignInterrupted
+
+    finished = []
+    state = {"calls": 0, "interrupt_at": None}
+
+    def run(job):
+        state["calls"] += 1
+        if state["calls"] == state["interrupt_at"]:
+            raise KeyboardInterrupt
+        finished.append(campaign.job_key(job))
+        return _fake_doc(job)
+
+    monkeypatch.setattr(campaign, "run_job", run)
+    whole = run_robustness(**_sweep_args(tmp_path / "whole"))
+    finished.clear()
+    state.update(calls=0, interrupt_at=8)
+    out = tmp_path / "rb"
+    with pytest.raises(CampaignInterrupted) as info:
+        run_robustness(**_sweep_args(out))
+    assert (info.value.saved, info.value.total) == (7, 12)
+    state.update(calls=0, interrupt_at=None)
+    resumed = run_robustness(**_sweep_args(out), resume=True)
+    assert len(finished) == len(set(finished)) == 12  # 7 before the interrupt, 5 after
+    assert resumed == whole
+    for name in OUTPUTS:
+        assert (out / name).read_bytes() == (tmp_path / "whole" / name).read_bytes(), name
+
+
+def test_resume_refuses_another_sweep_or_fixed_mismatch(tmp_path, monkeypatch):
+    from sanav_mj.eval import campaign
+    from sanav_mj.eval.campaign import JournalError
+
+    monkeypatch.setattr(campaign, "run_job", _fake_doc)
+    run_robustness(**_sweep_args(tmp_path))
+    for kw, fragment in (({"sweep": parse_sweep(["mass=1,3", "delay=0,1"])}, "sweep="),
+                         ({"fixed": parse_mismatch(["friction=0.4"])}, "fixed="),
+                         ({"seeds": 2}, "runs=3"), ({"controller": "mpc"}, "controllers=")):
+        with pytest.raises(JournalError, match=fragment):
+            run_robustness(**_sweep_args(tmp_path, **kw), resume=True)
+    # the worker count is not a setting of the results: a complete folder resumes with nothing to run
+    monkeypatch.setattr(campaign, "run_job", None)
+    run_robustness(**_sweep_args(tmp_path, workers=2), resume=True)
+
+
+def test_runs_that_raise_are_left_out_of_the_rates(tmp_path, monkeypatch):
+    from sanav_mj.eval import campaign
+
+    def run(job):
+        tags = dict(job.tags)
+        if tags["mass"] == 2.0 and (tags["delay"] == 0 or job.seed == 2):
+            raise RuntimeError("boom")
+        return _fake_doc(job)
+
+    monkeypatch.setattr(campaign, "run_job", run)
+    out = tmp_path / "rb"
+    summary = run_robustness(**_sweep_args(out))
+    by_cell = {(r["mass"], r["delay"]): r for r in summary}
+    assert [by_cell[(1.0, d)]["errors"] for d in (0.0, 1.0)] == [0, 0]
+    cell = by_cell[(2.0, 1.0)]  # seeds 0 (stuck) and 1 (collision) ran; seed 2 raised
+    assert (cell["runs"], cell["errors"]) == (2, 1)
+    assert cell["success_rate"] == 0.0 and cell["collision_rate"] == 50.0
+    assert cell["reasons"] == "collision 1, stuck 1"
+    blank = by_cell[(2.0, 0.0)]  # every run raised: no rate, no clearance
+    assert (blank["runs"], blank["errors"]) == (0, 3)
+    assert math.isnan(blank["success_rate"]) and math.isnan(blank["collision_rate"])
+    assert math.isnan(blank["min_clearance_m"])
+    runs = _read(out / "robustness.csv")
+    bad = [r for r in runs if r["reason"] == "error"]
+    assert len(bad) == 4 and {r["error"] for r in bad} == {"RuntimeError: boom"}
+    assert {(r["mass"], r["delay"], r["mismatch"]) for r in bad} == {
+        ("2.0", "0.0", "mass=2.0 delay=0 friction=0.5"), ("2.0", "1.0", "mass=2.0 delay=1 friction=0.5")}
+    cells = _read(out / "summary.csv")
+    assert [c["errors"] for c in cells] == ["0", "3", "0", "1"]
+    _assert_pngs(out)
