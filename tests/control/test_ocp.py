@@ -162,3 +162,48 @@ def test_shift_multipliers_moves_one_stage():
     np.testing.assert_allclose(shift_multipliers(ocp, y, shift_rates=False), [2, 3, 4, 5, 4, 5, 6, 7, 8, 9])
     assert shift_bound_multipliers(None) is None
     np.testing.assert_allclose(shift_bound_multipliers(np.arange(6.0)), [2, 3, 4, 5, 0, 0])
+
+
+def test_compiled_functions_equal_casadi_on_the_safe_area_problem(tmp_path):
+    """The compiled library (common subexpressions eliminated, CasADi's fmin/fmax branch)
+    evaluates f, grad f, g and the augmented Lagrangian as CasADi does, with J_SA's [.]_-
+    active at some stages and not at others."""
+    import alpaqa
+    import casadi as cs
+
+    rng = np.random.default_rng(3)
+    n, dt = 6, 0.1
+    pen = SafeAreaPenalty(2)
+    ocp = build_tracking_ocp(n, dt, pen)
+    x0, u_prev, x_ref, u_ref, w, z = _random_problem(rng, n, pen.n_params)
+    theta = np.array([0.0, -0.05, 0.3, 0.05, 4.0, 1.0, 0.25, -0.5, 1.0, 0.5, 2.0, 1.0])
+    p = ocp.layout.pack(x0, u_prev, x_ref, u_ref, w["q_x"], w["q_u"], w["q_a"], w["q_n"], theta)
+    f, g = ocp.functions()
+    path, _ = compile_alpaqa_problem(f, g, "no", tmp_path)
+    prob = alpaqa.load_casadi_problem(str(path))
+    prob.param = p
+    gl, gu = np.full(ocp.n_g, -0.1), np.full(ocp.n_g, 0.1)
+    prob.general_bounds.lower, prob.general_bounds.upper = gl, gu
+    grad_f = cs.Function("gf", [ocp.z, ocp.p], [cs.gradient(ocp.f, ocp.z)])
+    for _ in range(3):
+        z = rng.uniform(-1, 1, ocp.n_z)
+        y, sigma = rng.normal(size=ocp.n_g), rng.uniform(1, 100, ocp.n_g)
+        assert prob.eval_objective(z) == pytest.approx(float(f(z, p)), rel=1e-12)
+        np.testing.assert_allclose(prob.eval_objective_gradient(z), np.array(grad_f(z, p)).ravel(), rtol=1e-11, atol=1e-11)
+        gz = np.array(g(z, p)).ravel()
+        np.testing.assert_allclose(prob.eval_constraints(z), gz, rtol=1e-12, atol=1e-14)
+        zeta = gz + y / sigma
+        d = zeta - np.clip(zeta, gl, gu)
+        psi = float(f(z, p)) + 0.5 * np.dot(sigma * d, d)
+        assert prob.eval_augmented_lagrangian(z, y, sigma)[0] == pytest.approx(psi, rel=1e-12)
+
+
+def test_solver_settings_reject_bad_values():
+    with pytest.raises(ValueError, match="position_scale"):
+        SolverSettings(position_scale=0.0)
+    with pytest.raises(ValueError, match="max_iter"):
+        SolverSettings(max_iter=0)
+    with pytest.raises(ValueError, match="input_scale"):
+        SolverSettings(input_scale=(1.0, -3.0))
+    with pytest.raises(ValueError, match="budget_ms"):
+        SolverSettings(budget_ms=-1.0)
