@@ -45,7 +45,7 @@ class MonitorConfig:
             are commensurable.
     """
 
-    max_delay: int = 3
+    max_delay: int = 5
     nominal_delay: int = 0
     forgetting: float = 0.95
     switch_ratio: float = 0.5

@@ -123,8 +123,17 @@ class MPCConfig:
             takes effect) lies outside its stage box by ``e``: the speed bound becomes
             ``v_max max(derate_floor, 1 - e / excursion_stop)``, reached at the rate bound
             (see "Measured position outside its box"). None: no derating.
-        derate_floor: fraction of ``v_max`` the derating never goes below (so that a robot
-            slightly outside its box still makes progress back in).
+        derate_floor: fraction of ``v_max`` the excursion derating never goes below (so
+            that a robot slightly outside its box still makes progress back in).
+        residual_free, residual_stop: [m/s] speed derating by the actuation monitor's
+            velocity-tracking residual ``r`` (RMS over about 2 s of the measured minus the
+            identified response, the yaw rate counted as rim speed): none up to
+            ``residual_free``, then linear down to ``residual_floor v_max`` at
+            ``residual_stop`` and beyond (see "Derating by tracking residual"). Measured
+            residuals: below 0.006 m/s nominal, median 0.01-0.04 m/s in the envelope's
+            worst corner, 0.07-1 m/s at friction 0.05-0.1, a torque limit of 10 % or 5
+            steps of delay. None: no residual derating.
+        residual_floor: fraction of ``v_max`` the residual derating never goes below.
         fallback_brake: on a rejected solve, apply the previous plan only if it still meets
             every constraint of the current problem (rolled out from the current state),
             else brake at the rate bounds steering inside the corridor (see "Fallback");
@@ -166,6 +175,9 @@ class MPCConfig:
     monitor: MonitorConfig = MonitorConfig()
     excursion_stop: float | None = 0.15
     derate_floor: float = 0.25
+    residual_free: float = 0.05
+    residual_stop: float | None = 0.3
+    residual_floor: float = 0.1
     fallback_brake: bool = True
     turn_in_place: float | None = 1.0
     turn_exit: float = 0.3
@@ -205,8 +217,21 @@ class MPCConfig:
         if not isinstance(self.monitor, MonitorConfig):
             raise ValueError(f"MPCConfig.monitor must be a MonitorConfig, got {self.monitor!r}")
         _positive("excursion_stop", self.excursion_stop, allow_none=True)
-        if not (isinstance(self.derate_floor, (int, float)) and 0 <= self.derate_floor <= 1):
-            raise ValueError(f"MPCConfig.derate_floor must be in [0, 1], got {self.derate_floor!r}")
+        for name in ("derate_floor", "residual_floor"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0 <= v <= 1):
+                raise ValueError(f"MPCConfig.{name} must be in [0, 1], got {v!r}")
+        if not (isinstance(self.residual_free, (int, float)) and math.isfinite(self.residual_free)
+                and self.residual_free >= 0):
+            raise ValueError(f"MPCConfig.residual_free must be a finite number >= 0 m/s, got {self.residual_free!r}")
+        if self.residual_stop is not None and not (
+            isinstance(self.residual_stop, (int, float)) and math.isfinite(self.residual_stop)
+            and self.residual_stop > self.residual_free
+        ):
+            raise ValueError(
+                f"MPCConfig.residual_stop must be None or a finite number above residual_free "
+                f"({self.residual_free!r} m/s), got {self.residual_stop!r}"
+            )
         if self.reference_window is not None and not (
             isinstance(self.reference_window, int) and self.reference_window >= 1
         ):
@@ -703,6 +728,14 @@ class SAMPC:
     out, the slower, which shortens the stopping distance and the distance driven on a
     wrong model before the next measurement.
 
+    **Derating by tracking residual.** Slip (low friction), a saturated actuator (small
+    torque limit) or a delay beyond what the monitor identifies make the measured body
+    velocity differ from the identified response to the sent commands. The monitor's RMS
+    residual over its forgetting window lowers the speed bound like an excursion does
+    (``MPCConfig.residual_stop``): a plant that does not do what it is told is driven
+    slowly, down to ``residual_floor v_max``, so that its braking distance and the error
+    it accumulates per period shrink with the speed.
+
     **Latency compensation.** A plant that applies each command ``d`` control steps late
     (actuator and communication latency) makes an MPC that plans from the measured state
     weave: its first input takes effect ``d dt`` later than it assumes. The controller knows
@@ -1097,6 +1130,15 @@ class SAMPC:
             return self.limits.v_max
         return self.limits.v_max * max(self.config.derate_floor, 1.0 - excursion / stop)
 
+    def residual_cap(self) -> float:
+        """[m/s] speed bound from the monitor's velocity-tracking residual (see ``MPCConfig.residual_stop``)."""
+        cfg = self.config
+        if cfg.residual_stop is None:
+            return self.limits.v_max
+        r = float(np.hypot(self.monitor.residual[0], self.config.monitor.half_track * self.monitor.residual[1]))
+        frac = min(max((r - cfg.residual_free) / (cfg.residual_stop - cfg.residual_free), 0.0), 1.0)
+        return self.limits.v_max * (1.0 - (1.0 - cfg.residual_floor) * frac)
+
     def _union_slack(self, points: np.ndarray) -> np.ndarray:
         """(P,) [m] largest slack of each point (P, 2) over the corridor chain's members (negative: outside all)."""
         b = self.chain.boxes
@@ -1173,7 +1215,7 @@ class SAMPC:
         u_prev = np.tile(self._u_prev, n)
         z_ub = np.minimum(self._z_ub, u_prev + self._reach)
         z_lb = np.minimum(np.maximum(self._z_lb, u_prev - self._reach), z_ub)
-        cap = self.speed_cap(excursion)
+        cap = min(self.speed_cap(excursion), self.residual_cap())
         if cap < self.limits.v_max:
             # slow down to the cap at the rate bound (never asks for more than the rate allows)
             z_ub[0::2] = np.minimum(z_ub[0::2], np.maximum(cap, u_prev[0::2] - self._reach[0::2]))

@@ -219,8 +219,9 @@ def test_solved_prediction_respects_every_constraint(l_controller):
     x = np.array([3.3, 0.6, 0.4])
     ctl.reset(x)
     ctl._ref_index = 40  # mid-way: the horizon crosses the portal
+    cmd = None
     for k in range(3):
-        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=np.zeros(2)))
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=measured_velocity(cmd)))
         assert cmd.ok and cmd.status in ("ok", "inexact")
         _check_prediction_constraints(ctl, cmd)
         x = step_np(x, [cmd.v, cmd.w], ctl.dt)
@@ -247,6 +248,11 @@ def test_ipopt_and_panoc_agree_on_the_sa_mpc_problem(l_case):
 
 
 # ------------------------------------------------------------------ closed loops
+
+
+def measured_velocity(cmd) -> np.ndarray:
+    """(2,) body velocity a kinematic plant measures after applying ``cmd`` (zero before the first)."""
+    return np.zeros(2) if cmd is None else np.array([cmd.v, cmd.w])
 
 
 def run_closed_loop(
@@ -381,8 +387,9 @@ def test_measured_position_outside_its_box_is_recovered(l_case):
     ctl.reset(x)
     ctl._ref_index = 5
     first = None
+    cmd = None
     for k in range(25):
-        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=np.zeros(2)))
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=measured_velocity(cmd)))
         assert cmd.ok
         first = cmd if first is None else first
         x = step_np(x, [cmd.v, cmd.w], ctl.dt)
@@ -402,8 +409,9 @@ def test_injected_failures_shift_then_stop_then_recover(l_case):
     x = np.array([0.5, 0.5, 0.0])
     ctl.reset(x)
     statuses, speeds, path = [], [], []
+    cmd = None
     for k in range(60):
-        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=np.zeros(2)))
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=measured_velocity(cmd)))
         assert np.isfinite(cmd.v) and np.isfinite(cmd.w)
         statuses.append(cmd.status)
         speeds.append(cmd.v)
@@ -448,8 +456,9 @@ def test_tiny_solve_budget_never_produces_nan(l_case):
     ctl = SAMPC(ROBOT, areas, plan, MPCConfig(solve_budget_ms=0.001))
     x = np.array([0.5, 0.5, 0.0])
     ctl.reset(x)
+    cmd = None
     for k in range(20):
-        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=np.zeros(2)))
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=measured_velocity(cmd)))
         assert np.isfinite(cmd.v) and np.isfinite(cmd.w)
         x = step_np(x, [cmd.v, cmd.w], ctl.dt)
     assert inside_union(x[None, :2], areas.rects).all()
@@ -501,8 +510,9 @@ def test_opening_turn_on_the_spot_then_the_mpc(l_case):
     x = np.array([0.5, 0.5, 3.0])
     ctl.reset(x)
     cmds, poses = [], []
+    cmd = None
     for k in range(200):
-        cmd = ctl.step(Observation(t=0.1 * k, pose=x.copy(), velocity=np.zeros(2)))
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x.copy(), velocity=measured_velocity(cmd)))
         cmds.append(cmd)
         x = step_np(x, [cmd.v, cmd.w], ctl.dt)
         poses.append(x.copy())
@@ -613,6 +623,27 @@ def test_speed_cap_known_answers(l_controller):
     assert SAMPC(ROBOT, ctl.areas, ctl.plan, MPCConfig(excursion_stop=None)).speed_cap(1.0) == vm
 
 
+def test_residual_cap_known_answers(l_case):
+    areas, plan = l_case
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(residual_free=0.05, residual_stop=0.3, residual_floor=0.1))
+    vm = ctl.limits.v_max
+    ctl.monitor.residual = np.array([0.04, 0.0])
+    assert ctl.residual_cap() == vm
+    ctl.monitor.residual = np.array([0.0, 0.175 / 0.19])  # 0.175 m/s at the rim: half way
+    assert ctl.residual_cap() == pytest.approx(vm * (1 - 0.9 * 0.5))
+    ctl.monitor.residual = np.array([0.3, 0.3])
+    assert ctl.residual_cap() == pytest.approx(0.1 * vm)
+    off = SAMPC(ROBOT, areas, plan, MPCConfig(residual_stop=None))
+    off.monitor.residual = np.array([1.0, 1.0])
+    assert off.residual_cap() == vm
+    with pytest.raises(ValueError, match="MPCConfig.residual_stop"):
+        MPCConfig(residual_free=0.3, residual_stop=0.2)
+    with pytest.raises(ValueError, match="MPCConfig.residual_floor"):
+        MPCConfig(residual_floor=1.5)
+    with pytest.raises(ValueError, match="MPCConfig.excursion_stop"):
+        MPCConfig(excursion_stop=0.0)
+
+
 def test_outside_its_box_at_speed_the_speed_bound_brakes_to_the_cap(l_case):
     areas, plan = l_case
     ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
@@ -644,14 +675,14 @@ def test_fallback_brakes_when_the_previous_plan_no_longer_fits(l_case):
     ctl.reset(x)
     cmd = None
     for k in range(12):
-        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=np.zeros(2)))
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=measured_velocity(cmd)))
         x = step_np(x, [cmd.v, cmd.w], ctl.dt)
     v0, w0 = cmd.v, cmd.w
     assert v0 > 0.4
     # the robot turned out to be heading 40 deg to the right of where the plan thinks: the
     # rest of the plan, rolled out from there, leaves R0 through its lower side
     x_bad = x + np.array([0.0, -0.42, -0.7])
-    cmd = ctl.step(Observation(t=1.2, pose=x_bad, velocity=np.zeros(2)))
+    cmd = ctl.step(Observation(t=1.2, pose=x_bad, velocity=measured_velocity(cmd)))
     assert cmd.status == "fallback_stop" and not cmd.ok
     assert cmd.v == pytest.approx(v0 - ctl.limits.a_max * ctl.dt)
     assert abs(cmd.w - w0) <= ctl.limits.alpha_max * ctl.dt + 1e-9
@@ -660,10 +691,11 @@ def test_fallback_brakes_when_the_previous_plan_no_longer_fits(l_case):
     old = SAMPC(ROBOT, areas, plan, MPCConfig(fallback_brake=False), failure_injector=lambda k: k in fail)
     y = np.array([0.5, 0.5, 0.0])
     old.reset(y)
+    c = None
     for k in range(12):
-        c = old.step(Observation(t=0.1 * k, pose=y, velocity=np.zeros(2)))
+        c = old.step(Observation(t=0.1 * k, pose=y, velocity=measured_velocity(c)))
         y = step_np(y, [c.v, c.w], old.dt)
-    assert old.step(Observation(t=1.2, pose=x_bad, velocity=np.zeros(2))).status == "fallback_shift"
+    assert old.step(Observation(t=1.2, pose=x_bad, velocity=measured_velocity(c))).status == "fallback_shift"
 
 
 def test_brake_plan_stops_at_the_rate_bounds(l_controller):
