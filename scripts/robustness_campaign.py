@@ -11,7 +11,7 @@ all read back from the CSVs on disk (``--report-only`` rebuilds it without runni
     python scripts/robustness_campaign.py --out out/robustness_campaign --only envelope
     python scripts/robustness_campaign.py --out out/robustness_campaign --report-only
 
-About 2 400 runs; about half an hour on two cores (most of it in the failing runs beyond
+About 2 700 runs; 11-15 min on two cores with two workers (most of it in the slow runs beyond
 the envelope, which last until they stop or time out).
 """
 
@@ -231,6 +231,32 @@ def write_report(out: Path, sweeps: list[Sweep], walls: dict[str, float], args_l
                     if all(float(r[k]) == v for k, v in where.items())]
             n, succ, coll, clear = _aggregate(runs)
             lines.append(f"| {label} | {name} | {n} | {succ:.1f} | {coll:.1f} | {_clear(str(clear))} |")
+    beyond = [sw for sw in present if sw.group == "beyond"]
+    if beyond:
+        lines += ["", "## Beyond the envelope: how the failed runs end", "",
+                  "Every run beyond the envelope that did not reach the goal, by reason (a collision is the "
+                  "failure to avoid; `stuck`, `timeout`, `solver_failure` and `bad_measurement` end with the "
+                  "robot stopped or crawling, without contact).", "",
+                  "| sweep | runs | failed | collision | stuck | timeout | solver_failure | bad_measurement | "
+                  "collision % of runs | collision % of failures |", "|---|---|---|---|---|---|---|---|---|---|"]
+        tot: dict[str, int] = {}
+        n_all = 0
+        for sw in beyond:
+            runs = _read(out / sw.name / "robustness.csv")
+            failed = [r for r in runs if r["success"] != "True"]
+            by = {k: sum(r["reason"] == k for r in failed)
+                  for k in ("collision", "stuck", "timeout", "solver_failure", "bad_measurement")}
+            n_all += len(runs)
+            tot["failed"] = tot.get("failed", 0) + len(failed)
+            for k, v in by.items():
+                tot[k] = tot.get(k, 0) + v
+            lines.append(f"| {sw.name} | {len(runs)} | {len(failed)} | " + " | ".join(str(v) for v in by.values())
+                         + f" | {100.0 * by['collision'] / max(len(runs), 1):.1f} | "
+                         f"{100.0 * by['collision'] / max(len(failed), 1):.1f} |")
+        lines.append(f"| **all** | {n_all} | {tot['failed']} | " + " | ".join(
+            str(tot[k]) for k in ("collision", "stuck", "timeout", "solver_failure", "bad_measurement"))
+            + f" | {100.0 * tot['collision'] / max(n_all, 1):.1f} | "
+            f"{100.0 * tot['collision'] / max(tot['failed'], 1):.1f} |")
     wall_s = sum(float(_info(out / sw.name).get("wall_s", 0.0)) for sw in present)
     lines += ["", f"{total} runs in all, {wall_s / 60:.1f} min wall"
               + (f" ({sum(walls.values()) / 60:.1f} min in this invocation)" if walls else "") + ".", ""]

@@ -40,7 +40,9 @@ class MonitorConfig:
             below this fraction of the current one, in (0, 1].
         min_excitation: [m^2/s^2] smallest forgotten sum of squared commanded speeds (and
             rim speeds of the yaw rate) before a delay or gain estimate is trusted.
-        gain_min, gain_max: clamp of the identified gains (dimensionless).
+        gain_min, gain_max: clamp of the identified gains (dimensionless; 0.5-2 covers the
+            +-20 % geometry corners, whose yaw gain is up to 1.5; at friction 0.05 the
+            identified yaw gain reaches the lower clamp).
         half_track: [m] converts yaw rates into rim speeds so that the v and w residuals
             are commensurable.
     """
@@ -50,8 +52,8 @@ class MonitorConfig:
     forgetting: float = 0.95
     switch_ratio: float = 0.5
     min_excitation: float = 0.5
-    gain_min: float = 0.7
-    gain_max: float = 1.4
+    gain_min: float = 0.5
+    gain_max: float = 2.0
     half_track: float = 0.19
 
     def __post_init__(self) -> None:

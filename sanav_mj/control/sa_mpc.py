@@ -175,8 +175,8 @@ class MPCConfig:
     monitor: MonitorConfig = MonitorConfig()
     excursion_stop: float | None = 0.15
     derate_floor: float = 0.25
-    residual_free: float = 0.05
-    residual_stop: float | None = 0.3
+    residual_free: float = 0.03
+    residual_stop: float | None = 0.2
     residual_floor: float = 0.1
     fallback_brake: bool = True
     turn_in_place: float | None = 1.0
