@@ -686,6 +686,16 @@ BACKENDS: dict[str, type] = {
 }
 
 
+def _sqp_backend(ocp: TrackingOCP, settings: SolverSettings = SolverSettings(), cache_dir: Path | None = None) -> Backend:
+    """:class:`sanav_mj.control.sqp.SqpBackend` (imported here: sqp.py imports this module)."""
+    from sanav_mj.control.sqp import SqpBackend
+
+    return SqpBackend(ocp, settings, cache_dir)
+
+
+BACKENDS["sqp"] = _sqp_backend
+
+
 def make_backend(name: str, ocp: TrackingOCP, settings: SolverSettings, cache_dir: Path | None = None) -> Backend:
     """Construct the back-end called ``name`` (one of :data:`BACKENDS`) for ``ocp``."""
     try:
