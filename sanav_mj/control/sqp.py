@@ -57,6 +57,7 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
+import math
 import os
 import subprocess
 import tempfile
@@ -343,11 +344,12 @@ class SqpBackend:
         hi = (self._in_zu - z <= ctol) & (r < 0)
         return np.where(lo | hi, -r, 0.0)
 
-    def _solve_qp(self, z, zl, zu, gl, gu, active=None):
+    def _solve_qp(self, z, zl, zu, gl, gu, y):
         """Set up and solve the QP at the last evaluation: (exitflag, d, lam (n + m,)).
 
-        ``active``: (row mask (m,), bound mask (n,) as floats) of the expected active set,
-        used to convexify an indefinite Hessian, or None."""
+        The current multipliers ``y`` (m,) and the variables at a bound (to
+        ``constraint_tol``) make the expected active set, used to convexify an indefinite
+        Hessian."""
         n = self._n
         H, A, bu, bl = self._H, self._A, self._bu, self._bl
         H[:] = self._v_hess
@@ -357,8 +359,7 @@ class SqpBackend:
         np.subtract(gu, self._v_g, out=bu[n:])
         np.subtract(gl, self._v_g, out=bl[n:])
         self._grad[:] = self._v_grad
-        delta, conv, rho = 0.0, None, 0.0
-        scale = max(1.0, float(np.max(np.abs(np.diag(self._v_hess)))))
+        delta, conv, rho, scale = 0.0, None, 0.0, 1.0
         for _ in range(_MAX_REGULARISE + 4):
             if not self._qp_ready:
                 flag = self._qp.setup(H, self._grad, A, bu, bl, self._sense)[0]
@@ -380,18 +381,20 @@ class SqpBackend:
             # positive definite for a large enough rho when the reduced Hessian is (the usual
             # case at a constrained minimum, where the full Hessian need not be). Then, if
             # still needed, add delta I (from an estimate of the smallest eigenvalue).
-            if conv is None and active is not None:
-                rows, at_bound = active
-                jac_a = self._v_jac[rows]
+            if conv is None:
+                ctol = self.settings.constraint_tol
+                scale = max(1.0, float(np.max(np.abs(np.diag(self._v_hess)))))
+                jac_a = self._v_jac[y != 0.0]
                 conv = jac_a.T @ jac_a
-                conv[np.diag_indices(n)] += at_bound
-                rho = 0.0
-            if conv is not None and rho < _CONVEX_MAX * scale:
+                conv[np.diag_indices(n)] += (z - zl <= ctol) | (zu - z <= ctol)
+                if not conv.any():  # no active set to convexify along: shift at once
+                    rho = _CONVEX_MAX * scale
+            if rho < _CONVEX_MAX * scale:
                 rho = scale if rho == 0.0 else rho * 10.0
                 np.add(self._v_hess, rho * conv, out=H)
                 self.regularised += 1
                 continue
-            base = self._v_hess if conv is None else self._v_hess + rho * conv
+            base = self._v_hess + rho * conv
             if delta == 0.0:
                 delta = max(_DELTA_MIN * scale, -1.2 * _min_eigenvalue(base))
             else:
@@ -447,14 +450,12 @@ class SqpBackend:
         deadline = t0 + s.budget_ms / 1e3 if s.budget_ms else None
         n, m = self._n, self._m
         zl, zu, gl, gu = self._in_zl, self._in_zu, self._in_gl, self._in_gu
-        np.clip(z_lb, -_BIG, _BIG, out=zl)
-        np.clip(z_ub, -_BIG, _BIG, out=zu)
-        np.clip(g_lb, -_BIG, _BIG, out=gl)
-        np.clip(g_ub, -_BIG, _BIG, out=gu)
-        z = np.clip(np.asarray(z0, dtype=float), zl, zu)
+        for src, dst in ((z_lb, zl), (z_ub, zu), (g_lb, gl), (g_ub, gu)):  # ufuncs: np.clip's wrapper is slower
+            np.maximum(np.minimum(src, _BIG, out=dst), -_BIG, out=dst)
+        z = np.minimum(np.maximum(z0, zl), zu)
         y = np.zeros(m) if y0 is None else np.array(y0, dtype=float)
-        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(y))):
-            z = np.clip(np.nan_to_num(z), zl, zu)
+        if not math.isfinite(float(np.sum(z)) + float(np.sum(y))):
+            z = np.minimum(np.maximum(np.nan_to_num(z), zl), zu)
             y = np.zeros(m)
         self._in_p[:] = p
         self.qp_iterations = self.regularised = self.backtracks = self.elastic = 0
@@ -478,8 +479,7 @@ class SqpBackend:
                 status = "MaxTime"
                 break
             it += 1
-            active = (y != 0.0, ((z - zl <= ctol) | (zu - z <= ctol)).astype(float))
-            flag, d, lam = self._solve_qp(z, zl, zu, gl, gu, active)
+            flag, d, lam = self._solve_qp(z, zl, zu, gl, gu, y)
             if flag == _DAQP_INFEASIBLE:
                 if n_elastic >= _MAX_ELASTIC:
                     status = "Infeasible"
@@ -501,7 +501,7 @@ class SqpBackend:
                     y_new = y  # the penalty's price of a violated row, not the problem's multiplier
                 alpha, accepted = 1.0, False
                 for _ in range(_MAX_BACKTRACK):  # line search on the violation alone
-                    z_try = np.clip(z + alpha * d, zl, zu)  # rounding of the QP's bounds
+                    z_try = np.minimum(np.maximum(z + alpha * d, zl), zu)  # rounding of the QP's bounds
                     self._evaluate(z_try, y_new)
                     if kkt[4] <= v0 - _ARMIJO * alpha * (v0 - v_lin):
                         accepted = True
@@ -526,7 +526,7 @@ class SqpBackend:
             dphi = min(float(self._grad @ d) - mu * v0, 0.0)
             alpha, accepted = 1.0, False
             for _ in range(_MAX_BACKTRACK):
-                z_try = np.clip(z + alpha * d, zl, zu)  # rounding of the QP's bounds
+                z_try = np.minimum(np.maximum(z + alpha * d, zl), zu)  # rounding of the QP's bounds
                 self._evaluate(z_try, y_new)
                 if kkt[0] + mu * kkt[4] <= phi0 + _ARMIJO * alpha * dphi:
                     accepted = True
