@@ -718,3 +718,27 @@ def test_default_limits_are_deterministic(l_case):
         _, path, cmds = run_closed_loop(ctl, [0.5, 0.5, 0.0], plan.goal, areas.rects[plan.corridor], steps=60, delay=1)
         runs.append(np.array([[c.v, c.w] for c in cmds]))
     np.testing.assert_array_equal(runs[0], runs[1])
+
+
+def test_shift_fits_up_to_the_box_margin(l_controller):
+    ctl = l_controller
+    n = ctl.N
+    m = ctl.config.box_margin
+    u = np.zeros((n, 2))
+    guess = np.tile([1.0, 0.5, 0.0], (n + 1, 1))
+    # every stage box [0.9, 0.4] - [1.1, 0.6]; rate rows +-0.15 / +-0.5; inputs in +-1
+    g_lb = np.concatenate((np.tile([0.9, 0.4], n), np.tile([-0.15, -0.5], n - 1)))
+    g_ub = np.concatenate((np.tile([1.1, 0.6], n), np.tile([0.15, 0.5], n - 1)))
+    z_lb, z_ub = -np.ones(2 * n), np.ones(2 * n)
+    assert ctl._shift_fits(g_lb, g_ub, z_lb, z_ub, u, guess)
+    out = guess.copy()
+    out[5, 1] = 0.6 + 0.5 * m  # half the margin beyond its box: still inside the member
+    assert ctl._shift_fits(g_lb, g_ub, z_lb, z_ub, u, out)
+    out[5, 1] = 0.6 + 1.5 * m  # beyond the member
+    assert not ctl._shift_fits(g_lb, g_ub, z_lb, z_ub, u, out)
+    jump = u.copy()
+    jump[3, 0] = 0.2  # a rate row violated: no margin there
+    assert not ctl._shift_fits(g_lb, g_ub, z_lb, z_ub, jump, guess)
+    steady = np.full((n, 2), 0.2)  # no rate row violated, but above an input bound of 0.1
+    assert ctl._shift_fits(g_lb, g_ub, z_lb, z_ub, steady, guess)
+    assert not ctl._shift_fits(g_lb, g_ub, z_lb, np.full(2 * n, 0.1), steady, guess)
