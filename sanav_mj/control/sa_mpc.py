@@ -131,8 +131,8 @@ class MPCConfig:
             ``residual_free``, then linear down to ``residual_floor v_max`` at
             ``residual_stop`` and beyond (see "Derating by tracking residual"). Measured
             residuals: below 0.006 m/s nominal, median 0.01-0.04 m/s in the envelope's
-            worst corner, 0.07-1 m/s at friction 0.05-0.1, a torque limit of 10 % or 5
-            steps of delay. None: no residual derating.
+            worst corner, 0.07-1 m/s at friction 0.05-0.1 or a torque limit of 10 %
+            (docs/robustness.md). None: no residual derating.
         residual_floor: fraction of ``v_max`` the residual derating never goes below.
         fallback_brake: on a rejected solve, apply the previous plan only if it still meets
             every constraint of the current problem (rolled out from the current state),
