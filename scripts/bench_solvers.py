@@ -149,10 +149,12 @@ def closed_loop(ctl: SAMPC, plan: Plan, yaw: float, steps: int = 400, record: li
         ctl.reset(x)
         ms, err, reached = [], [], False
         ref_xy = plan.smoothed
+        vel = np.zeros(2)  # the body velocity the plant measures: the last applied input
         for k in range(steps):
-            cmd = ctl.step(Observation(t=k * ctl.dt, pose=x.copy(), velocity=np.zeros(2)))
+            cmd = ctl.step(Observation(t=k * ctl.dt, pose=x.copy(), velocity=vel.copy()))
             ms.append(cmd.solve_ms)
-            x = step_np(x, [0.95 * cmd.v, 1.05 * cmd.w], ctl.dt)
+            vel = np.array([0.95 * cmd.v, 1.05 * cmd.w])
+            x = step_np(x, vel, ctl.dt)
             err.append(np.min(np.hypot(*(ref_xy - x[:2]).T)))
             if np.hypot(*(x[:2] - plan.goal)) < 0.05 and abs(cmd.v) < 0.05:
                 reached = True
