@@ -415,7 +415,21 @@ def _compiler() -> str:
 # IEEE rules; the SA-MPC functions hold about 1100 of them (J_SA's [.]_- and the ALM
 # projections). Same results for finite numbers; 9-10 % less time per ZeroFPR solve on the
 # recorded sequence. (-ffast-math gave 2-3 % more but drops IEEE semantics: not used.)
-_CFLAGS = ("-O3", "-march=native", "-std=gnu89", "-fPIC", "-shared")
+# -fno-semantic-interposition: CasADi's helpers (casadi_sq, casadi_fmin, ...) are global
+# functions of the shared library, which -fPIC alone must call through the PLT and may not
+# inline (another library could interpose them); with this flag GCC inlines them. 23 % less
+# CPU per ZeroFPR solve on the recorded sequence (0.355 -> 0.274 ms, same iterates up to
+# rounding: 36.9 instead of 37.1 iterations on average). -fno-math-errno: sqrt and friends
+# do not set errno (results unchanged), 3 % more. Measured interleaved in one process.
+_CFLAGS = (
+    "-O3",
+    "-march=native",
+    "-std=gnu89",
+    "-fPIC",
+    "-fno-semantic-interposition",
+    "-fno-math-errno",
+    "-shared",
+)
 
 
 def _cpu_id() -> str:
