@@ -660,9 +660,11 @@ class SAMPCStats:
 class SAMPC:
     """Safe-area MPC controller (the paper's Sec. III-D/E) implementing the Controller protocol.
 
-    Each step: find the progress along the reference, build the stage boxes, solve the NLP
-    (:mod:`sanav_mj.control.ocp`) warm-started from the shifted previous plan, check the
-    result, apply the first input (or a fallback).
+    Each step: update the actuation monitor with the measured velocity, predict the state
+    at which the new command takes effect (latency compensation), find the progress along
+    the reference, build the stage boxes, bound the speed by the excursion and the
+    tracking residual, solve the NLP (:mod:`sanav_mj.control.ocp`) warm-started from the
+    shifted previous plan, check the result, apply the first input (or a fallback).
 
     **Stage boxes.** The corridor ``c_0..c_{C-1}`` gives the chain ``R_0, B_01, R_1, ...``
     (:class:`CorridorChain`) where ``B_ij`` is a bridge box inside ``R_i ∪ R_j`` crossing
@@ -817,6 +819,8 @@ class SAMPC:
         needs_ranges: False.
         config, robot, limits: settings and resolved input limits.
         chain: the corridor chain.
+        monitor: the :class:`~sanav_mj.control.monitor.ActuationMonitor` (identified delay,
+            gains and tracking residual of the current episode).
         stats: per-episode status counts (``stats.failures`` counts fallback steps).
         last: :class:`StepInfo` of the last step that reached the solver stage, or None.
         last_failure_reason: why the last fallback was taken, or None.
