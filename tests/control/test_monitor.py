@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sanav_mj.control.monitor import ActuationMonitor, MonitorConfig
+from sanav_mj.control.monitor import ActuationMonitor, MonitorConfig, PoseFilter, PoseFilterConfig
+from sanav_mj.control.unicycle import step_np
 
 
 def drive(monitor: ActuationMonitor, commands: np.ndarray, delay: int, gains=(1.0, 1.0)) -> None:
@@ -112,3 +113,76 @@ def test_non_finite_velocity_is_ignored():
 def test_config_rejects_bad_values_naming_the_field(kw, match):
     with pytest.raises(ValueError, match=f"MonitorConfig.{match}"):
         MonitorConfig(**kw)
+
+
+# ------------------------------------------------------------------ pose filter
+
+
+def noisy_drive(filt: PoseFilter, steps: int, pos_noise: float, yaw_noise: float, seed: int = 0):
+    """Drive a kinematic unicycle (period velocity measured exactly) past ``filt``.
+
+    Returns (true poses, measured poses, estimates), each (steps, 3)."""
+    rng = np.random.default_rng(seed)
+    x = np.zeros(3)
+    true, meas, est = [], [], []
+    for k in range(steps):
+        u = np.array([1.0, 0.8 * np.sin(0.1 * k)])
+        x = step_np(x, u, filt.dt)
+        z = x + np.concatenate((rng.normal(0.0, pos_noise, 2), rng.normal(0.0, yaw_noise, 1)))
+        true.append(x)
+        meas.append(z)
+        est.append(filt.update(z, u))
+    return np.array(true), np.array(meas), np.array(est)
+
+
+def test_pose_filter_returns_a_noise_free_measurement_exactly():
+    filt = PoseFilter(0.1)
+    _, meas, est = noisy_drive(filt, 200, 0.0, 0.0)
+    np.testing.assert_array_equal(est, meas)
+    np.testing.assert_array_equal(filt.gain, np.ones(3))
+    np.testing.assert_array_equal(filt.noise_std, np.zeros(2))
+
+
+@pytest.mark.parametrize("pos_noise, yaw_noise", [(0.2, 0.175), (0.05, 0.087)])
+def test_pose_filter_estimates_the_noise_and_removes_most_of_it(pos_noise, yaw_noise):
+    filt = PoseFilter(0.1)
+    true, meas, est = noisy_drive(filt, 600, pos_noise, yaw_noise, seed=1)
+    err_est = np.hypot(*(est[100:, :2] - true[100:, :2]).T).mean()
+    err_meas = np.hypot(*(meas[100:, :2] - true[100:, :2]).T).mean()
+    assert err_est < 0.35 * err_meas
+    yaw_err = np.abs((est[100:, 2] - true[100:, 2] + np.pi) % (2 * np.pi) - np.pi).mean()
+    assert yaw_err < 0.35 * yaw_noise * np.sqrt(2 / np.pi)  # mean |N(0, s)| = s sqrt(2 / pi)
+    np.testing.assert_allclose(filt.noise_std, [pos_noise, yaw_noise], rtol=0.4)
+    assert np.all(filt.gain < 0.3)
+
+
+def test_pose_filter_uses_the_measurement_during_warmup_and_follows_its_yaw_branch():
+    filt = PoseFilter(0.1, PoseFilterConfig(warmup=5))
+    _, meas, est = noisy_drive(filt, 5, 0.1, 0.1)
+    np.testing.assert_array_equal(est, meas)
+    z = np.array([0.0, 0.0, 2 * np.pi + 0.1])  # an unwrapped yaw stays on its branch
+    out = PoseFilter(0.1).update(z, np.zeros(2))
+    assert out[2] == z[2]
+
+
+def test_pose_filter_passes_through_without_a_velocity_and_restarts():
+    filt = PoseFilter(0.1)
+    noisy_drive(filt, 100, 0.2, 0.1)
+    z = np.array([1.0, 2.0, 0.3])
+    np.testing.assert_array_equal(filt.update(z, None), z)
+    assert filt.estimate is None
+    np.testing.assert_array_equal(filt.update(z + 0.5, np.array([np.nan, 0.0])), z + 0.5)
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        (dict(odometry_std=0.0), "odometry_std"),
+        (dict(odometry_yaw_std=float("inf")), "odometry_yaw_std"),
+        (dict(forgetting=1.0), "forgetting"),
+        (dict(warmup=-1), "warmup"),
+    ],
+)
+def test_pose_filter_config_rejects_bad_values_naming_the_field(kw, match):
+    with pytest.raises(ValueError, match=f"PoseFilterConfig.{match}"):
+        PoseFilterConfig(**kw)

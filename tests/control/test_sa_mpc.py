@@ -646,7 +646,7 @@ def test_residual_cap_known_answers(l_case):
 
 def test_outside_its_box_at_speed_the_speed_bound_brakes_to_the_cap(l_case):
     areas, plan = l_case
-    ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(pose_filter=None))  # a real jump, not noise
     x = np.array([1.0, 0.5, 0.0])
     ctl.reset(x)
     ctl._ref_index = 5
@@ -670,7 +670,8 @@ def test_outside_its_box_at_speed_the_speed_bound_brakes_to_the_cap(l_case):
 def test_fallback_brakes_when_the_previous_plan_no_longer_fits(l_case):
     areas, plan = l_case
     fail = {12}
-    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(), failure_injector=lambda k: k in fail)
+    cfg = MPCConfig(pose_filter=None)  # the jump below is real, not noise to filter out
+    ctl = SAMPC(ROBOT, areas, plan, cfg, failure_injector=lambda k: k in fail)
     x = np.array([0.5, 0.5, 0.0])
     ctl.reset(x)
     cmd = None
@@ -688,7 +689,7 @@ def test_fallback_brakes_when_the_previous_plan_no_longer_fits(l_case):
     assert abs(cmd.w - w0) <= ctl.limits.alpha_max * ctl.dt + 1e-9
     assert cmd.w > w0  # it steers left, back into R0
     # the same step with the paper-style fallback replays the old plan
-    old = SAMPC(ROBOT, areas, plan, MPCConfig(fallback_brake=False), failure_injector=lambda k: k in fail)
+    old = SAMPC(ROBOT, areas, plan, cfg.replace(fallback_brake=False), failure_injector=lambda k: k in fail)
     y = np.array([0.5, 0.5, 0.0])
     old.reset(y)
     c = None
@@ -742,3 +743,107 @@ def test_shift_fits_up_to_the_box_margin(l_controller):
     steady = np.full((n, 2), 0.2)  # no rate row violated, but above an input bound of 0.1
     assert ctl._shift_fits(g_lb, g_ub, z_lb, z_ub, steady, guess)
     assert not ctl._shift_fits(g_lb, g_ub, z_lb, np.full(2 * n, 0.1), steady, guess)
+
+
+def test_residual_yaw_cap_known_answers(l_case):
+    areas, plan = l_case
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(residual_free=0.05, residual_stop=0.3, residual_floor=0.1))
+    wm = ctl.limits.w_max
+    ctl.monitor.residual = np.array([0.04, 0.0])
+    assert ctl.residual_yaw_cap() == wm
+    ctl.monitor.residual = np.array([0.0, 0.175 / 0.19])  # half way: the speed bound is 55 %
+    assert ctl.residual_yaw_cap() == pytest.approx(wm * (1 - 0.9 * 0.5))
+    ctl.monitor.residual = np.array([0.3, 0.3])  # speed bound 10 %, yaw rate floor 30 %
+    assert ctl.residual_yaw_cap() == pytest.approx(0.3 * wm)
+    off = SAMPC(ROBOT, areas, plan, MPCConfig(residual_yaw_floor=None))
+    off.monitor.residual = np.array([1.0, 1.0])
+    assert off.residual_yaw_cap() == wm
+    with pytest.raises(ValueError, match="MPCConfig.residual_yaw_floor"):
+        MPCConfig(residual_yaw_floor=-0.1)
+
+
+def _cruise_with_residual(ctl, residual, fail_at=None, steps=12):
+    """Drive along R0 for ``steps`` steps, then one more step with the monitor's residual
+    forced to ``residual`` (the monitor's own update switched off). Returns (last cmd, v0, w0)."""
+    x = np.array([0.5, 0.5, 0.0])
+    ctl.reset(x)
+    cmd = None
+    for k in range(steps):
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=measured_velocity(cmd)))
+        x = step_np(x, [cmd.v, cmd.w], ctl.dt)
+    v0, w0 = cmd.v, cmd.w
+    ctl.monitor.update = lambda velocity: None
+    ctl.monitor.residual = np.asarray(residual, float)
+    cmd = ctl.step(Observation(t=0.1 * steps, pose=x, velocity=measured_velocity(cmd)))
+    return cmd, v0, w0
+
+
+def test_residual_derating_bounds_the_yaw_rate_at_the_rate_bound(l_case):
+    areas, plan = l_case
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
+    _, _, w0 = _cruise_with_residual(ctl, [0.3, 0.3])
+    wcap = ctl.residual_yaw_cap()
+    assert wcap < ctl.limits.w_max
+    al = ctl.limits.alpha_max * ctl.dt
+    k = np.arange(1, ctl.N + 1)
+    np.testing.assert_allclose(
+        ctl.last.input_upper[:, 1],
+        np.minimum(np.minimum(ctl.limits.w_max, w0 + k * al), np.maximum(wcap, w0 - k * al)),
+        atol=1e-12,
+    )
+    np.testing.assert_allclose(
+        ctl.last.input_lower[:, 1],
+        np.maximum(np.maximum(-ctl.limits.w_max, w0 - k * al), np.minimum(-wcap, w0 + k * al)),
+        atol=1e-12,
+    )
+    assert np.all(ctl.last.input_upper[2:, 1] == pytest.approx(wcap))
+    off = SAMPC(ROBOT, areas, plan, MPCConfig(residual_yaw_floor=None))
+    _cruise_with_residual(off, [0.3, 0.3])
+    assert off.last.input_upper[-1, 1] == off.limits.w_max
+
+
+def test_fallback_does_not_follow_the_old_plan_faster_than_the_derated_speed(l_case):
+    areas, plan = l_case
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(), failure_injector=lambda k: k == 12)
+    cmd, v0, _ = _cruise_with_residual(ctl, [0.3, 0.3])
+    assert v0 > 0.4 and ctl.residual_cap() < v0 - ctl.limits.a_max * ctl.dt
+    assert cmd.status == "fallback_stop"  # the rest of the plan cruises on: brake instead
+    assert cmd.v == pytest.approx(v0 - ctl.limits.a_max * ctl.dt)
+    old = SAMPC(ROBOT, areas, plan, MPCConfig(fallback_derated=False), failure_injector=lambda k: k == 12)
+    cmd, v0, _ = _cruise_with_residual(old, [0.3, 0.3])
+    assert cmd.status == "fallback_shift" and cmd.v > v0 - old.limits.a_max * old.dt
+
+
+def test_the_pose_filter_feeds_the_problem(l_case):
+    areas, plan = l_case
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
+    assert ctl.pose_filter is not None
+    ctl.reset(np.array([0.5, 0.5, 0.0]))
+    ctl.pose_filter.update = lambda pose, velocity: np.array([0.6, 0.45, 0.1])
+    ctl._turning = False
+    ctl.step(Observation(t=0.0, pose=np.array([0.5, 0.5, 0.0]), velocity=np.zeros(2)))
+    np.testing.assert_array_equal(ctl.last.guess_states[0], [0.6, 0.45, 0.1])
+    off = SAMPC(ROBOT, areas, plan, MPCConfig(pose_filter=None))
+    assert off.pose_filter is None
+    with pytest.raises(ValueError, match="MPCConfig.pose_filter"):
+        MPCConfig(pose_filter=0.1)
+
+
+def test_closed_loop_with_large_noise_the_pose_filter_calms_the_commands(u_case):
+    areas, plan = u_case
+    rects = areas.rects[plan.corridor]
+    jerk = {}
+    for name, cfg in (("filter", MPCConfig()), ("raw", MPCConfig(pose_filter=None))):
+        ctl = SAMPC(ROBOT, areas, plan, cfg)
+        ok, _, cmds = run_closed_loop(ctl, [0.5, 0.5, 1.57], plan.goal, rects, noise=0.1, seed=3)
+        assert ok
+        jerk[name] = np.abs(np.diff([c.w for c in cmds])).mean()  # [rad/s] mean yaw-rate change per step
+    assert jerk["filter"] < 0.5 * jerk["raw"]  # measured 0.10 against 0.31 rad/s
+
+
+def test_default_iteration_caps_bound_the_solver_effort():
+    cfg = MPCConfig()
+    assert cfg.solve_budget_ms is None
+    assert (cfg.max_iter, cfg.max_outer_iter) == (100, 20)
+    s = cfg.solver_settings()
+    assert (s.max_iter, s.max_outer_iter, s.budget_ms) == (100, 20, None)
