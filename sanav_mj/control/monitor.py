@@ -176,16 +176,20 @@ class PoseFilterConfig:
             integrated from the measured body velocity (the process noise; slip does not
             count, the body velocity is measured, not commanded).
         odometry_yaw_std: [rad] the same for the heading.
-        forgetting: per-step forgetting factor of the innovation statistics, in (0, 1)
-            (0.95: about 20 steps, 2 s at dt = 0.1 s).
+        forgetting: per-step forgetting factor of the noise statistics, in (0, 1)
+            (0.98: about 50 steps, 5 s at dt = 0.1 s).
         warmup: steps during which the measurement is used as it is (the noise level is not
             known yet).
+        max_nis: consistency check: when the forgotten mean of the normalised innovation
+            squared (``nu^2`` over its predicted variance, 1 for a consistent filter)
+            exceeds this, the filter restarts from the measurement.
     """
 
     odometry_std: float = 0.005
     odometry_yaw_std: float = 0.01
-    forgetting: float = 0.95
+    forgetting: float = 0.98
     warmup: int = 10
+    max_nis: float = 3.0
 
     def __post_init__(self) -> None:
         for name in ("odometry_std", "odometry_yaw_std"):
@@ -194,6 +198,8 @@ class PoseFilterConfig:
                 raise ValueError(f"PoseFilterConfig.{name} must be a positive finite number, got {v!r}")
         if not (isinstance(self.forgetting, (int, float)) and 0 < self.forgetting < 1):
             raise ValueError(f"PoseFilterConfig.forgetting must be in (0, 1), got {self.forgetting!r}")
+        if not (isinstance(self.max_nis, (int, float)) and math.isfinite(self.max_nis) and self.max_nis > 1):
+            raise ValueError(f"PoseFilterConfig.max_nis must be a finite number > 1, got {self.max_nis!r}")
         if not (isinstance(self.warmup, int) and self.warmup >= 0):
             raise ValueError(f"PoseFilterConfig.warmup must be an integer >= 0, got {self.warmup!r}")
 
@@ -203,32 +209,46 @@ def _wrap(a):
 
 
 class PoseFilter:
-    """Noise-adaptive fusion of the measured pose with the measured body velocity (an EKF).
+    """Fusion of the measured pose with the measured body velocity, for white pose noise (an EKF).
 
     State: the pose (3,). Per step: predict it from the previous estimate by integrating the
     body velocity measured at the end of the period over the period, on an arc (the wheel
     servos reach a command within a fraction of the period, so under the zero-order hold
-    this is the period's velocity: nominal MuJoCo innovations are below 3 mm and about
-    3 mrad, outside the first steps and sharp yaw-rate changes), with the unicycle's Jacobian carrying the heading uncertainty into
-    the position and the process noise ``odometry_std`` per period; estimate the
-    measurement noise covariance ``R = diag(r_p, r_p, r_yaw)`` from the innovations
-    ``nu = z - x_pred`` (``E[nu nu^T] = P_pred + R``, forgotten over about 2 s); update with
-    the Kalman gain ``K = P_pred (P_pred + R)^-1``. A noise-free measurement gives
-    innovations at the odometry error level, ``R = 0`` and ``K = I``: the estimate *is* the
-    measurement (returned exactly). With white noise of std ``sigma`` well above the
-    odometry error the position gain falls to about ``odometry_std / sigma`` (20 cm
-    noise: the estimate's error is about a quarter of the measurement's).
+    this is the period's velocity: nominal MuJoCo odometry errors are below 3 mm and about
+    3 mrad per period outside sharp yaw-rate changes), with the unicycle's Jacobian carrying
+    the heading uncertainty into the position; update with the Kalman gain.
 
-    During the first ``warmup`` steps the measurement is used as it is (the noise level is
-    not known yet) and the estimate's covariance is set to the estimated ``R``.
+    **Noise identification.** The increments ``d_k = (z_k - z_{k-1}) - odometry_k`` of the
+    measurements ``z`` against the odometry form a moving average: white measurement noise
+    of variance ``R`` gives ``E[d_k d_{k-1}] = -R`` (each noise sample enters two consecutive
+    increments with opposite signs), whereas odometry error (lateral slip, which the body
+    velocity ``(v, w)`` does not contain, wheel slip) is correlated from one period to the
+    next and gives a lag-one covariance >= 0. So ``R = max(0, -E[d_k d_{k-1}])``, forgotten
+    over about 5 s, per group (position, yaw); ``R`` below ``odometry_std^2`` counts as 0
+    (it underestimates the noise when slip adds a positive covariance: the filter then
+    trusts the measurement more, the safe side). With ``R = 0`` the estimate *is* the
+    measurement, returned exactly: nominally, and on a slipping floor without pose noise,
+    nothing changes. (A first version took ``R`` from the innovations ``z - x_pred``; on a
+    floor with friction 0.05 the lateral slip made them large, the filter took the slip for
+    noise, trusted the odometry and the estimate drifted: the robot stalled in u_shape.)
+    The process noise is ``odometry_std`` per period. **Consistency check**: when the
+    forgotten mean of the normalised innovation squared exceeds ``max_nis`` (slip or a
+    real jump that the velocity does not explain), the filter restarts from the
+    measurement.
 
-    Assumes white measurement noise and a measured body velocity without bias; without a
-    velocity (``None``) or with a non-finite input the measurement is passed through and
-    the filter restarts.
+    With white noise of std ``sigma`` well above the odometry error the position gain
+    falls to about ``odometry_std / sigma`` and the estimate's error is a fraction of the
+    measurement's (20 cm: about a seventh). During the first ``warmup`` steps the
+    measurement is used as it is.
+
+    Assumes a measured body velocity without bias; without a velocity (``None``) or with
+    a non-finite input the measurement is passed through and the filter restarts.
 
     Attributes:
+        estimate: (3,) [m, m, rad] the last estimate, None after a restart.
         gain: (3,) diagonal of the last Kalman gain (1: the measurement was used as it is).
-        noise_std: (2,) [m, rad] estimated measurement noise std (position per axis, yaw).
+        noise_std: (2,) [m, rad] identified measurement noise std (position per axis, yaw).
+        restarts: how often the consistency check restarted the filter this episode.
     """
 
     def __init__(self, dt: float, config: PoseFilterConfig = PoseFilterConfig()):
@@ -241,14 +261,18 @@ class PoseFilter:
     def reset(self) -> None:
         """Forget everything (start of an episode)."""
         self.estimate: np.ndarray | None = None  # (3,) [m, m, rad]
-        self._vel: np.ndarray | None = None
+        self._z: np.ndarray | None = None  # last measurement
+        self._d: np.ndarray | None = None  # last increment against the odometry
         self._p = np.zeros((3, 3))
-        self._nu2 = np.zeros(2)  # forgotten sums: mean sq. position innovation per axis, yaw
-        self._pp = np.zeros(2)  # forgotten sums of the matching predicted variances
+        self._s0 = np.zeros(2)  # forgotten sums of d_k^2 (position: mean of x, y), yaw
+        self._s1 = np.zeros(2)  # forgotten sums of d_k d_{k-1}
         self._w = 0.0
         self._steps = 0
         self.gain = np.ones(3)
         self.noise_std = np.zeros(2)
+        self._nis = np.zeros(2)  # forgotten sums of the normalised innovation squared
+        self._nis_w = 0.0
+        self.restarts = 0
 
     def update(self, pose: np.ndarray, velocity: np.ndarray | None) -> np.ndarray:
         """Fold in the measured ``pose`` (3,) and body ``velocity`` (2,) [m/s, rad/s]; returns the estimate (3,)."""
@@ -260,36 +284,66 @@ class PoseFilter:
             self.reset()
             return z
         cfg = self.config
-        q = np.diag([cfg.odometry_std**2, cfg.odometry_std**2, cfg.odometry_yaw_std**2])
+        q0 = np.array([cfg.odometry_std, cfg.odometry_yaw_std]) ** 2
         if self.estimate is None:
-            self.estimate, self._vel, self._p = z.copy(), vel, q.copy()
+            self.estimate, self._z = z.copy(), z.copy()
+            self._p = np.diag(q0[[0, 0, 1]])
             self._steps = 1
             return z
-        u = vel
-        self._vel = vel
         x = self.estimate
-        pred = rollout_np(x, u[None, :], self.dt)[-1]
-        th = x[2] + 0.5 * u[1] * self.dt
-        f = np.eye(3)
-        f[0, 2] = -u[0] * self.dt * math.sin(th)
-        f[1, 2] = u[0] * self.dt * math.cos(th)
-        p_pred = f @ self._p @ f.T + q
-        nu = np.array([z[0] - pred[0], z[1] - pred[1], float(_wrap(z[2] - pred[2]))])
+        pred = rollout_np(x, vel[None, :], self.dt)[-1]
+        odo = pred - x
+        d = z - self._z - odo
+        d[2] = float(_wrap(d[2]))
+        self._z = z.copy()
         lam = cfg.forgetting
-        self._nu2 = lam * self._nu2 + np.array([0.5 * (nu[0] ** 2 + nu[1] ** 2), nu[2] ** 2])
-        self._pp = lam * self._pp + np.array([0.5 * (p_pred[0, 0] + p_pred[1, 1]), p_pred[2, 2]])
-        self._w = lam * self._w + 1.0
-        r = np.maximum((self._nu2 - self._pp) / self._w, 0.0)
+        if self._d is not None:
+            self._s0 = lam * self._s0 + np.array([0.5 * (d[0] ** 2 + d[1] ** 2), d[2] ** 2])
+            self._s1 = lam * self._s1 + np.array(
+                [0.5 * (d[0] * self._d[0] + d[1] * self._d[1]), d[2] * self._d[2]]
+            )
+            self._w = lam * self._w + 1.0
+        self._d = d
+        if self._w > 0:
+            r = np.maximum(-self._s1 / self._w, 0.0)
+            r[r < q0] = 0.0
+        else:
+            r = np.zeros(2)
         self.noise_std = np.sqrt(r)
-        rm = np.diag([r[0], r[0], r[1]])
+        q = q0
+        th = x[2] + 0.5 * vel[1] * self.dt
+        f = np.eye(3)
+        f[0, 2] = -vel[0] * self.dt * math.sin(th)
+        f[1, 2] = vel[0] * self.dt * math.cos(th)
+        p_pred = f @ self._p @ f.T + np.diag(q[[0, 0, 1]])
+        rm = np.diag(r[[0, 0, 1]])
         self._steps += 1
         if self._steps <= cfg.warmup or not np.any(r > 0):
-            self.estimate, self._p = z.copy(), rm + q
+            self.estimate, self._p = z.copy(), rm + np.diag(q0[[0, 0, 1]])
             self.gain = np.ones(3)
+            return z
+        nu = z - pred
+        nu[2] = float(_wrap(nu[2]))
+        s_pred = np.array([0.5 * (p_pred[0, 0] + p_pred[1, 1]), p_pred[2, 2]]) + r
+        nis = np.array([0.5 * (nu[0] ** 2 + nu[1] ** 2), nu[2] ** 2]) / s_pred
+        self._nis = lam * self._nis + nis
+        self._nis_w = lam * self._nis_w + 1.0
+        if np.any(self._nis / self._nis_w > cfg.max_nis):
+            # the innovations are far larger than the filter expects (a real jump, slip the
+            # velocity does not show): restart from the measurement
+            self._nis[:] = 0.0
+            self._nis_w = 0.0
+            self.estimate, self._p = z.copy(), rm + np.diag(q0[[0, 0, 1]])
+            self.gain = np.ones(3)
+            self.restarts += 1
             return z
         k = p_pred @ np.linalg.inv(p_pred + rm)
         est = pred + k @ nu
         est[2] = z[2] - nu[2] + (k @ nu)[2]  # on the measured yaw's branch
+        if r[0] == 0.0:
+            est[:2] = z[:2]  # the position is trusted: exactly the measurement
+        if r[1] == 0.0:
+            est[2] = z[2]
         ik = np.eye(3) - k
         self._p = ik @ p_pred @ ik.T + k @ rm @ k.T  # Joseph form
         self.gain = np.diag(k).copy()

@@ -118,8 +118,9 @@ def test_config_rejects_bad_values_naming_the_field(kw, match):
 # ------------------------------------------------------------------ pose filter
 
 
-def noisy_drive(filt: PoseFilter, steps: int, pos_noise: float, yaw_noise: float, seed: int = 0):
-    """Drive a kinematic unicycle (period velocity measured exactly) past ``filt``.
+def noisy_drive(filt: PoseFilter, steps: int, pos_noise: float, yaw_noise: float, seed: int = 0, slip: float = 0.0):
+    """Drive a kinematic unicycle (period velocity measured exactly) past ``filt``; ``slip``
+    [m/s] is a sideways velocity towards the outside of the turn that (v, w) does not show.
 
     Returns (true poses, measured poses, estimates), each (steps, 3)."""
     rng = np.random.default_rng(seed)
@@ -128,6 +129,7 @@ def noisy_drive(filt: PoseFilter, steps: int, pos_noise: float, yaw_noise: float
     for k in range(steps):
         u = np.array([1.0, 0.8 * np.sin(0.1 * k)])
         x = step_np(x, u, filt.dt)
+        x[:2] -= slip * filt.dt * np.sign(u[1]) * np.array([-np.sin(x[2]), np.cos(x[2])])
         z = x + np.concatenate((rng.normal(0.0, pos_noise, 2), rng.normal(0.0, yaw_noise, 1)))
         true.append(x)
         meas.append(z)
@@ -135,12 +137,21 @@ def noisy_drive(filt: PoseFilter, steps: int, pos_noise: float, yaw_noise: float
     return np.array(true), np.array(meas), np.array(est)
 
 
-def test_pose_filter_returns_a_noise_free_measurement_exactly():
+@pytest.mark.parametrize("slip", [0.0, 0.1, 0.3])
+def test_pose_filter_returns_a_noise_free_measurement_exactly_even_with_slip(slip):
     filt = PoseFilter(0.1)
-    _, meas, est = noisy_drive(filt, 200, 0.0, 0.0)
-    np.testing.assert_array_equal(est, meas)
+    _, meas, est = noisy_drive(filt, 300, 0.0, 0.0, slip=slip)
+    np.testing.assert_array_equal(est, meas)  # slip is not noise: nothing to filter
     np.testing.assert_array_equal(filt.gain, np.ones(3))
     np.testing.assert_array_equal(filt.noise_std, np.zeros(2))
+
+
+def test_pose_filter_with_noise_and_slip_still_improves_on_the_measurement():
+    filt = PoseFilter(0.1)
+    true, meas, est = noisy_drive(filt, 600, 0.2, 0.175, seed=2, slip=0.1)
+    err_est = np.hypot(*(est[100:, :2] - true[100:, :2]).T)
+    err_meas = np.hypot(*(meas[100:, :2] - true[100:, :2]).T)
+    assert err_est.mean() < 0.5 * err_meas.mean()
 
 
 @pytest.mark.parametrize("pos_noise, yaw_noise", [(0.2, 0.175), (0.05, 0.087)])
@@ -165,6 +176,19 @@ def test_pose_filter_uses_the_measurement_during_warmup_and_follows_its_yaw_bran
     assert out[2] == z[2]
 
 
+def test_pose_filter_restarts_from_the_measurement_after_a_real_jump():
+    filt = PoseFilter(0.1)
+    true, _, _ = noisy_drive(filt, 200, 0.05, 0.0, seed=4)
+    assert filt.gain[0] < 0.5 and filt.restarts == 0
+    x = true[-1]
+    jumped = x + np.array([0.8, 0.0, 0.0])  # relocalised 0.8 m away, then exact
+    outs = []
+    for _ in range(10):
+        outs.append(filt.update(jumped, np.zeros(2)))
+    assert filt.restarts >= 1
+    np.testing.assert_allclose(outs[-1], jumped, atol=0.05)
+
+
 def test_pose_filter_passes_through_without_a_velocity_and_restarts():
     filt = PoseFilter(0.1)
     noisy_drive(filt, 100, 0.2, 0.1)
@@ -181,6 +205,7 @@ def test_pose_filter_passes_through_without_a_velocity_and_restarts():
         (dict(odometry_yaw_std=float("inf")), "odometry_yaw_std"),
         (dict(forgetting=1.0), "forgetting"),
         (dict(warmup=-1), "warmup"),
+        (dict(max_nis=1.0), "max_nis"),
     ],
 )
 def test_pose_filter_config_rejects_bad_values_naming_the_field(kw, match):
