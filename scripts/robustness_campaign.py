@@ -11,7 +11,7 @@ all read back from the CSVs on disk (``--report-only`` rebuilds it without runni
     python scripts/robustness_campaign.py --out out/robustness_campaign --only envelope
     python scripts/robustness_campaign.py --out out/robustness_campaign --report-only
 
-About 2 700 runs; 11-15 min on two cores with two workers (most of it in the slow runs beyond
+About 2 700 runs; 4-5 min on two cores with two workers at 5e9dc79 (most of it in the runs beyond
 the envelope, which last until they stop or time out).
 """
 
