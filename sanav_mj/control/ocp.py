@@ -471,21 +471,54 @@ def compile_alpaqa_problem(
     """
     import alpaqa
 
+    key = (f.serialize(), g.serialize(), second_order, cs.__version__, alpaqa.__version__, "cse")
+    return cached_shared_library(
+        "alpaqa", key, lambda folder: _generate_cse(f, g, second_order).generate(str(folder) + os.sep),
+        "the alpaqa problem", cache_dir,
+    )
+
+
+def cached_shared_library(
+    prefix: str,
+    key: tuple[str, ...],
+    generate,
+    what: str,
+    cache_dir: Path | None = None,
+) -> tuple[Path, bool]:
+    """Compile generated C into ``<cache>/<prefix>_<hash>.so`` once, or return the cached library.
+
+    The hash covers ``key`` (whatever identifies the generated code: serialised functions,
+    versions), the compiler flags and the processor. The library is written under a
+    temporary name and renamed, so concurrent processes never load a half-written file.
+
+    Args:
+        prefix: file name prefix (``"alpaqa"``, ``"sqp"``).
+        key: strings identifying the code.
+        generate: ``generate(folder: Path) -> str`` writes the C source into ``folder`` and
+            returns its path (called only on a cache miss).
+        what: what is compiled, for the error message.
+        cache_dir: folder of the cache (default :func:`default_cache_dir`).
+
+    Returns:
+        (path of the shared library, True when it was compiled by this call).
+
+    Raises:
+        RuntimeError: the compiler failed (its first 2000 characters of stderr).
+    """
     h = hashlib.sha256()
-    for part in (f.serialize(), g.serialize(), second_order, cs.__version__, alpaqa.__version__, " ".join(_CFLAGS), _cpu_id(), "cse"):
+    for part in (*key, " ".join(_CFLAGS), _cpu_id()):
         h.update(part.encode())
-    digest = h.hexdigest()[:20]
     root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    target = root / f"alpaqa_{digest}.so"
+    target = root / f"{prefix}_{h.hexdigest()[:20]}.so"
     if target.is_file():
         return target, False
     root.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=root, prefix="build_") as tmp:
-        src = _generate_cse(f, g, second_order).generate(str(Path(tmp)) + os.sep)
+        src = generate(Path(tmp))
         out = Path(tmp) / "lib.so"
-        proc = subprocess.run([_compiler(), *_CFLAGS, src, "-o", str(out), "-lm"], capture_output=True, text=True)
+        proc = subprocess.run([_compiler(), *_CFLAGS, src, "-o", str(out), "-lm"], capture_output=True, text=True, check=False)
         if proc.returncode != 0:
-            raise RuntimeError(f"compiling the alpaqa problem failed: {proc.stderr.strip()[:2000]}")
+            raise RuntimeError(f"compiling {what} failed: {proc.stderr.strip()[:2000]}")
         os.replace(out, target)
     return target, True
 

@@ -56,11 +56,8 @@ at an upper bound, negative at a lower one), like the other back-ends.
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import math
 import os
-import subprocess
-import tempfile
 import time
 from pathlib import Path
 
@@ -68,13 +65,10 @@ import casadi as cs
 import numpy as np
 
 from sanav_mj.control.ocp import (
-    _CFLAGS,
     SolveResult,
     SolverSettings,
     TrackingOCP,
-    _compiler,
-    _cpu_id,
-    default_cache_dir,
+    cached_shared_library,
 )
 from sanav_mj.control.unicycle import rollout_cs
 
@@ -213,24 +207,12 @@ def compile_sqp_function(fn: cs.Function, cache_dir: Path | None = None) -> tupl
     Returns:
         (path of the shared library, True when it was compiled by this call).
     """
-    h = hashlib.sha256()
-    for part in (fn.serialize(), cs.__version__, " ".join(_CFLAGS), _cpu_id(), "sqp1"):
-        h.update(part.encode())
-    root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    target = root / f"sqp_{h.hexdigest()[:20]}.so"
-    if target.is_file():
-        return target, False
-    root.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=root, prefix="build_") as tmp:
+    def generate(folder: Path) -> str:
         cg = cs.CodeGenerator("sqp_eval.c", {"with_header": False})
         cg.add(fn)
-        src = cg.generate(str(Path(tmp)) + os.sep)
-        out = Path(tmp) / "lib.so"
-        proc = subprocess.run([_compiler(), *_CFLAGS, src, "-o", str(out), "-lm"], capture_output=True, text=True, check=False)
-        if proc.returncode != 0:
-            raise RuntimeError(f"compiling the SQP functions failed: {proc.stderr.strip()[:2000]}")
-        os.replace(out, target)
-    return target, True
+        return cg.generate(str(folder) + os.sep)
+
+    return cached_shared_library("sqp", (fn.serialize(), cs.__version__, "sqp1"), generate, "the SQP functions", cache_dir)
 
 
 class _Compiled:
