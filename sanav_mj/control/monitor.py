@@ -12,8 +12,11 @@ and track errors (a wheel 10 % large drives and turns 10 % faster, a track 10 % 
 11 % faster) and, on average, longitudinal slip.
 
 Used by :class:`~sanav_mj.control.sa_mpc.SAMPC` for latency compensation (predict the
-state at the instant the new command takes effect from the commands still in flight) and
-for a speed derating when the velocity tracking residual grows (slip, saturation).
+state at the instant the new command takes effect from the commands still in flight), for
+a speed derating when the velocity tracking residual grows (slip, saturation) and for a
+traction estimate (the command running away from the measured speed at every candidate
+delay, and the largest speed change per period the body achieved) that lowers the MPC's
+rate bound of the speed on a floor that cannot brake at the model's rate.
 
 :class:`PoseFilter` fuses the measured pose with the measured body velocity (an EKF whose
 measurement noise is estimated from its own innovations): a noise-free pose passes
@@ -49,6 +52,19 @@ class MonitorConfig:
             identified yaw gain reaches the lower clamp).
         half_track: [m] converts yaw rates into rim speeds so that the v and w residuals
             are commensurable.
+        slip_gap: [m/s] traction evidence: a period after which the measured speed is
+            further than this from the command applied over it *at every candidate delay*
+            ``0..max_delay`` (gain 1), on the same side, counts as a traction-limited
+            (slipping) period. A plant with grip and a delay in range reaches the command of
+            its delay within a period, up to its gain (a gain error of 10 % leaves at most
+            0.14 m/s at 1.43 m/s; at friction 0.05 the gap is 0.3-0.5 m/s). None: no
+            traction estimate.
+        slip_periods: consecutive such periods before the traction limit is trusted.
+        peak_yaw_rate: [rad/s] the speed change of a period counts towards ``peak_dv`` only
+            if the measured yaw rate at both its ends is at most this: the measured speed is
+            the body-frame component, and a body that slides sideways while it turns sees
+            it change by ``v_lateral w dt`` without any traction (at friction 0.05: 0.09 m/s
+            per period at 1.2 rad/s, twice the 0.045 the floor gives straight ahead).
     """
 
     max_delay: int = 5
@@ -59,8 +75,17 @@ class MonitorConfig:
     gain_min: float = 0.5
     gain_max: float = 2.0
     half_track: float = 0.19
+    slip_gap: float | None = 0.2
+    slip_periods: int = 2
+    peak_yaw_rate: float = 0.5
 
     def __post_init__(self) -> None:
+        if self.slip_gap is not None and not (
+            isinstance(self.slip_gap, (int, float)) and math.isfinite(self.slip_gap) and self.slip_gap > 0
+        ):
+            raise ValueError(f"MonitorConfig.slip_gap must be None or a positive finite number of m/s, got {self.slip_gap!r}")
+        if not (isinstance(self.slip_periods, int) and self.slip_periods >= 1):
+            raise ValueError(f"MonitorConfig.slip_periods must be an integer >= 1, got {self.slip_periods!r}")
         if not (isinstance(self.max_delay, int) and 0 <= self.max_delay <= 20):
             raise ValueError(f"MonitorConfig.max_delay must be an integer in [0, 20], got {self.max_delay!r}")
         if not (isinstance(self.nominal_delay, int) and 0 <= self.nominal_delay <= max(self.max_delay, 0)):
@@ -72,7 +97,7 @@ class MonitorConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0 < v <= 1 and not (name == "forgetting" and v == 1)):
                 raise ValueError(f"MonitorConfig.{name} must be in (0, 1), got {v!r}")
-        for name in ("min_excitation", "half_track"):
+        for name in ("min_excitation", "half_track", "peak_yaw_rate"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"MonitorConfig.{name} must be a positive finite number, got {v!r}")
@@ -97,6 +122,27 @@ class ActuationMonitor:
             excited enough.
         residual: (2,) [m/s, rad/s] RMS of the velocity tracking residual at the current
             delay and gains (forgotten), zero until excited.
+        peak_dv: [m/s] largest change of the measured speed over one period this episode
+            (periods with a yaw rate above ``peak_yaw_rate`` excluded): the floor gives at
+            least ``peak_dv / dt`` of grip (a lower bound, whatever was commanded).
+        slipping: True while the last ``slip_periods`` consecutive periods each left the
+            measured speed more than ``slip_gap`` away from the commands of the last
+            ``max_delay + 1`` periods, all on the same side (see "Traction" below).
+        traction_limited: ``slipping`` was True at some step of this episode.
+
+    **Traction.** Wheel slip shows as the command running away from the measured speed
+    while the plant accelerates at what the floor gives: the commanded-minus-measured
+    speed grows beyond what a gain error explains, while the speed changes by a bounded
+    amount per period. To not mistake a delayed plant with grip for a slipping one, the
+    gap must hold against the command applied at *every* candidate delay (not only the
+    identified one, which lags behind at the start of an episode): a plant with a delay
+    in range reaches the command of its delay within a period, scaled by its gain. Once
+    slip is seen, the largest speed change per period measured so far (``peak_dv``, a
+    lower bound of the grip; at friction 0.05 it reads 0.045-0.049 m/s per period, about
+    the grip) is the estimate of the acceleration the floor gives. A grippy plant that
+    still raised the flag (a delay beyond ``max_delay``, a gain below 0.86 at top speed)
+    has a ``peak_dv`` of about the model's rate bound from its start-up ramp, so the
+    estimate would barely limit it.
     """
 
     def __init__(self, config: MonitorConfig = MonitorConfig()):
@@ -115,6 +161,12 @@ class ActuationMonitor:
         self.delay = self.config.nominal_delay
         self.gains = np.ones(2)
         self.residual = np.zeros(2)
+        self.peak_dv = 0.0
+        self.traction_limited = False
+        self.slipping = False
+        self._slip_run = 0
+        self._v_last: float | None = None
+        self._w_last = 0.0
 
     def update(self, velocity: np.ndarray) -> None:
         """Fold in the velocity (2,) [m/s, rad/s] measured at the start of this step.
@@ -122,9 +174,25 @@ class ActuationMonitor:
         Non-finite measurements are ignored.
         """
         vm = np.asarray(velocity, dtype=float).reshape(2)
-        if self._steps == 0 or not np.all(np.isfinite(vm)):
+        if not np.all(np.isfinite(vm)):
             return
         cfg = self.config
+        if self._v_last is not None and max(abs(float(vm[1])), self._w_last) <= cfg.peak_yaw_rate:
+            self.peak_dv = max(self.peak_dv, abs(float(vm[0]) - self._v_last))
+        if self._steps > cfg.max_delay and cfg.slip_gap is not None:
+            # gap to the command applied over the last period at every candidate delay: a
+            # plant with grip and any delay in range reaches one of them (up to its gain)
+            gaps = self._hist[: cfg.max_delay + 1, 0] - float(vm[0])
+            if np.all(gaps > cfg.slip_gap) or np.all(gaps < -cfg.slip_gap):
+                self._slip_run += 1
+            else:
+                self._slip_run = 0
+            self.slipping = self._slip_run >= cfg.slip_periods
+            self.traction_limited = self.traction_limited or self.slipping
+        self._v_last = float(vm[0])
+        self._w_last = abs(float(vm[1]))
+        if self._steps == 0:
+            return
         lam = cfg.forgetting
         cand = self._hist[: cfg.max_delay + 1]  # cand[d] = command applied last period if the delay is d
         self._svv = lam * self._svv + vm * vm

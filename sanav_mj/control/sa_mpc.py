@@ -145,6 +145,16 @@ class MPCConfig:
             robot can still turn towards its corridor); the lateral acceleration ``v w`` a
             plant that does not follow is asked for falls with the square of the fraction.
             None: the yaw rate is not derated.
+        traction_probe: speed rate bound from the monitor's traction evidence (see
+            "Traction limit" in :class:`SAMPC`): while the monitor sees the plant slip, the
+            rate bound of the speed (and with it the speed bounds implied by the terminal
+            stop and the braking fallback) is this factor times the largest speed change
+            per period the body achieved this episode, over ``dt`` (above 1: room for the
+            plant to show more grip). None: the model's ``a_max`` throughout.
+        traction_floor: fraction of ``a_max`` the traction bound never goes below.
+        traction_recovery: per-step relative growth of the traction bound back towards
+            ``a_max`` while no slip is seen (0.05: from the floor to ``a_max`` in about
+            5 s).
         fallback_derated: on a rejected solve, check the shifted previous plan against the
             *derated* input bounds as well: a plan that keeps a speed (or yaw rate) above the
             current derating is not followed, the robot brakes (it used to follow its old
@@ -199,6 +209,9 @@ class MPCConfig:
     residual_stop: float | None = 0.2
     residual_floor: float = 0.1
     residual_yaw_floor: float | None = 0.3
+    traction_probe: float | None = 1.25
+    traction_floor: float = 0.1
+    traction_recovery: float = 0.05
     fallback_derated: bool = True
     fallback_brake: bool = True
     turn_in_place: float | None = 1.0
@@ -241,6 +254,12 @@ class MPCConfig:
         if not isinstance(self.monitor, MonitorConfig):
             raise ValueError(f"MPCConfig.monitor must be a MonitorConfig, got {self.monitor!r}")
         _positive("excursion_stop", self.excursion_stop, allow_none=True)
+        _positive("traction_probe", self.traction_probe, allow_none=True)
+        if not (isinstance(self.traction_floor, (int, float)) and 0 < self.traction_floor <= 1):
+            raise ValueError(f"MPCConfig.traction_floor must be in (0, 1], got {self.traction_floor!r}")
+        if not (isinstance(self.traction_recovery, (int, float)) and math.isfinite(self.traction_recovery)
+                and self.traction_recovery >= 0):
+            raise ValueError(f"MPCConfig.traction_recovery must be a finite number >= 0, got {self.traction_recovery!r}")
         for name in ("derate_floor", "residual_floor", "residual_yaw_floor"):
             v = getattr(self, name)
             if v is None and name == "residual_yaw_floor":
@@ -770,6 +789,23 @@ class SAMPC:
     driving at 0.8 m/s, asking for more lateral acceleration than the floor gives; derating
     both inputs cuts the asked-for ``v w`` with the square of the fraction.
 
+    **Traction limit.** The residual measures the tracking error, not the braking
+    capability: on a floor with 0.36-0.49 m/s^2 of grip (friction 0.05) the identified
+    speed gain drops to its clamp, absorbs the slow ramp, and the residual stays near
+    0.04 m/s while the commanded speed runs 0.5 m/s ahead of the measured one; the robot
+    reached 0.93 m/s with the model braking at 1.5 m/s^2 and slid out of its corridor at a
+    corner. The monitor flags slip when the measured speed stays more than
+    ``monitor.slip_gap`` from the commands of *every* candidate delay (a delayed plant with
+    grip reaches the command of its delay, so it is not mistaken for a slipping one), and
+    keeps the largest speed change per period the body achieved (a lower bound of the grip;
+    periods of fast turning excluded). While slip is seen, the rate bound of the speed
+    becomes ``traction_probe`` times that grip (not below ``traction_floor a_max``); every
+    bound derived from ``a_max`` follows, per solve: the rate constraints, the speed bounds
+    implied by the terminal stop (so each plan can stop inside its stage boxes at the
+    grip the plant showed) and the braking fallback. Without slip the bound recovers by
+    ``traction_recovery`` per step. In a plant with grip the flag is never raised (no run of
+    the envelope, nor the nominal runs), so nothing changes there.
+
     **Pose filter.** Before anything else the measured pose is fused with the measured body
     velocity by a :class:`~sanav_mj.control.monitor.PoseFilter` (an EKF whose measurement
     noise is identified online from the lag-one covariance of the measurement increments
@@ -836,7 +872,8 @@ class SAMPC:
     mechanisms give is that model error is met by going slower (excursion derating),
     planning from where the robot will be when the command acts (latency compensation) and
     stopping instead of replaying (fallback). A plant that cannot follow the braking the
-    model assumes (``a_max``; e.g. at very low friction or a small torque limit) or a
+    model assumes (``a_max``; e.g. at very low friction or a small torque limit) before
+    the monitor has seen it slip (see "Traction limit"), or a
     position error larger than ``box_margin`` plus the map's inflation margin within one
     period can still collide; docs/robustness.md gives the measured envelope.
 
@@ -867,6 +904,8 @@ class SAMPC:
         stats: per-episode status counts (``stats.failures`` counts fallback steps).
         last: :class:`StepInfo` of the last step that reached the solver stage, or None.
         last_failure_reason: why the last fallback was taken, or None.
+        accel: [m/s^2] the current rate bound of the speed: ``limits.a_max``, lowered while
+            the monitor sees slip (see "Traction limit").
         build_s: [s] time spent building this controller (including the solver back-end).
     """
 
@@ -922,20 +961,9 @@ class SAMPC:
         self.ocp = build_tracking_ocp(n, self.dt, self.penalty, position_constraints=True)
         cache = Path(config.cache_dir) if config.cache_dir else None
         self.backend = get_backend(self.ocp, config.solver, config.solver_settings(), cache)
-        # Constant parts of the problem data.
-        self._z_lb = np.tile(self.limits.lower(), n)
-        self._z_ub = np.tile(self.limits.upper(), n)
-        self._rate_step = self.limits.rate() * self.dt
-        if config.terminal_stop:
-            # v_{N-1} = 0 and the rate bound imply |v_k| <= (N-1-k) a dt: implied bounds
-            # (see "Implied input bounds" in the class doc)
-            stop = (n - 1 - np.arange(n)) * self._rate_step[0]
-            self._z_lb[0::2] = np.maximum(self._z_lb[0::2], -stop)
-            self._z_ub[0::2] = np.minimum(self._z_ub[0::2], stop)
-        # |u_k - u_prev| <= (k + 1) * rate step, implied by the rate bounds from u_prev
-        self._reach = np.outer(np.arange(1, n + 1), self._rate_step).ravel()
-        self._rate_lb = np.tile(-self._rate_step, n - 1)
-        self._rate_ub = np.tile(self._rate_step, n - 1)
+        # Constant parts of the problem data (the speed's rate bound may be lowered per
+        # episode by the traction estimate, see "Traction limit" in the class doc).
+        self._set_accel(self.limits.a_max)
         self._weights = tuple(np.asarray(w, float) for w in (config.q_x, config.q_u, config.q_a, config.q_n))
         self._q_sa = np.asarray(config.q_sa, float)
         self._check_tol = 10.0 * config.constraint_tol + 1e-9
@@ -948,6 +976,45 @@ class SAMPC:
         self.reset(np.array([*self.ref_states[0, :2], self.ref_states[0, 2]]))
         self.build_s = time.perf_counter() - t0
 
+    def _set_accel(self, a_max: float) -> None:
+        """Set the rate bound of the speed to ``a_max`` [m/s^2] and everything derived from it
+        (input bounds implied by the terminal stop, reach from the previous input, rate
+        constraints); the yaw-rate bound stays ``limits.alpha_max``."""
+        n = self.N
+        self.accel = float(a_max)
+        self._z_lb = np.tile(self.limits.lower(), n)
+        self._z_ub = np.tile(self.limits.upper(), n)
+        self._rate_step = np.array([self.accel, self.limits.alpha_max]) * self.dt
+        if self.config.terminal_stop:
+            # v_{N-1} = 0 and the rate bound imply |v_k| <= (N-1-k) a dt: implied bounds
+            # (see "Implied input bounds" in the class doc)
+            stop = (n - 1 - np.arange(n)) * self._rate_step[0]
+            self._z_lb[0::2] = np.maximum(self._z_lb[0::2], -stop)
+            self._z_ub[0::2] = np.minimum(self._z_ub[0::2], stop)
+        # |u_k - u_prev| <= (k + 1) * rate step, implied by the rate bounds from u_prev
+        self._reach = np.outer(np.arange(1, n + 1), self._rate_step).ravel()
+        self._rate_lb = np.tile(-self._rate_step, n - 1)
+        self._rate_ub = np.tile(self._rate_step, n - 1)
+
+    def traction_accel(self) -> float:
+        """[m/s^2] the next rate bound of the speed from the monitor's traction evidence.
+
+        While the monitor sees the plant slip (``monitor.slipping``): ``traction_probe``
+        times the largest speed change per period measured this episode (``peak_dv``, a
+        lower bound of the grip) over ``dt``, not below ``traction_floor a_max``. Otherwise
+        the current bound recovers by the factor ``1 + traction_recovery`` per step up to
+        ``limits.a_max``; it is ``limits.a_max`` as long as no slip was seen (see "Traction
+        limit" in the class doc).
+        """
+        cfg = self.config
+        a_max = self.limits.a_max
+        if cfg.traction_probe is None:
+            return a_max
+        if self.monitor.slipping:
+            est = cfg.traction_probe * self.monitor.peak_dv / self.dt
+            return float(min(a_max, max(est, cfg.traction_floor * a_max)))
+        return float(min(a_max, self.accel * (1.0 + cfg.traction_recovery)))
+
     # ---------------------------------------------------------------- episode state
 
     def reset(self, pose: np.ndarray) -> None:
@@ -955,6 +1022,8 @@ class SAMPC:
         pose = np.asarray(pose, dtype=float).reshape(3)
         self._u_prev = np.zeros(2)
         self.monitor.reset()
+        if self.accel != self.limits.a_max:
+            self._set_accel(self.limits.a_max)
         if self.pose_filter is not None:
             self.pose_filter.reset()
         self._active: _Plan | None = None
@@ -1281,6 +1350,9 @@ class SAMPC:
         x_meas = np.asarray(obs.pose, dtype=float).reshape(3)
         if obs.velocity is not None:
             self.monitor.update(obs.velocity)
+            a = self.traction_accel()
+            if a != self.accel:
+                self._set_accel(a)
         if not np.all(np.isfinite(x_meas)):
             return self._fallback(x_meas, t0, None, None, "bad_measurement")
         if self.pose_filter is not None:

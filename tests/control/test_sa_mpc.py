@@ -847,3 +847,72 @@ def test_default_iteration_caps_bound_the_solver_effort():
     assert (cfg.max_iter, cfg.max_outer_iter) == (100, 20)
     s = cfg.solver_settings()
     assert (s.max_iter, s.max_outer_iter, s.budget_ms) == (100, 20, None)
+
+
+# ------------------------------------------------------------------ traction limit
+
+
+def test_traction_accel_known_answers(l_case):
+    areas, plan = l_case
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(traction_probe=1.25, traction_floor=0.1, traction_recovery=0.05))
+    a_max = ctl.limits.a_max
+    assert ctl.accel == a_max and ctl.traction_accel() == a_max  # no slip seen
+    ctl.monitor.slipping = True
+    ctl.monitor.peak_dv = 0.04  # [m/s per period]: 0.4 m/s^2
+    assert ctl.traction_accel() == pytest.approx(1.25 * 0.4)
+    ctl.monitor.peak_dv = 0.0
+    assert ctl.traction_accel() == pytest.approx(0.1 * a_max)  # the floor
+    ctl.monitor.peak_dv = 1.0
+    assert ctl.traction_accel() == a_max  # never above the model's bound
+    ctl.monitor.slipping = False
+    ctl.accel = 0.5
+    assert ctl.traction_accel() == pytest.approx(0.5 * 1.05)  # recovers while no slip is seen
+    ctl.accel = a_max
+    assert ctl.traction_accel() == a_max
+    off = SAMPC(ROBOT, areas, plan, MPCConfig(traction_probe=None))
+    off.monitor.slipping = True
+    assert off.traction_accel() == a_max
+    for kw, match in ((dict(traction_probe=0.0), "traction_probe"), (dict(traction_floor=1.5), "traction_floor"),
+                      (dict(traction_recovery=-0.1), "traction_recovery")):
+        with pytest.raises(ValueError, match=f"MPCConfig.{match}"):
+            MPCConfig(**kw)
+
+
+def test_a_slipping_plant_is_planned_to_brake_at_the_grip_it_showed(l_case):
+    # the monitor sees slip with 0.04 m/s per period of grip: the MPC's speed rate bound,
+    # the speed bounds implied by the terminal stop and the braking fallback use 0.5 m/s^2
+    areas, plan = l_case
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
+    x = np.array([0.5, 0.5, 0.0])
+    ctl.reset(x)
+    cmd = None
+    for k in range(8):
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=measured_velocity(cmd)))
+        x = step_np(x, [cmd.v, cmd.w], ctl.dt)
+    assert ctl.accel == ctl.limits.a_max  # a kinematic plant with grip: no slip
+    ctl.monitor.update = lambda velocity: None
+    ctl.monitor.slipping = True
+    ctl.monitor.peak_dv = 0.04
+    v0 = cmd.v
+    cmd = ctl.step(Observation(t=0.8, pose=x, velocity=measured_velocity(cmd)))
+    a = 1.25 * 0.4
+    assert ctl.accel == pytest.approx(a)
+    np.testing.assert_allclose(ctl.last.rate_step, [a * ctl.dt, ctl.limits.alpha_max * ctl.dt])
+    k = np.arange(ctl.N)
+    assert np.all(ctl.last.input_upper[:, 0] <= (ctl.N - 1 - k) * a * ctl.dt + 1e-12)
+    assert np.all(ctl.last.input_upper[:, 0] <= v0 + (k + 1) * a * ctl.dt + 1e-12)
+    plan_v = ctl.brake_plan(x)[:, 0]
+    np.testing.assert_allclose(plan_v, np.maximum(ctl._u_prev[0] - (k + 1) * a * ctl.dt, 0.0), atol=1e-12)
+    ctl.reset(x)
+    assert ctl.accel == ctl.limits.a_max
+
+
+def test_friction_005_double_rect_seed1_no_longer_slides_out_at_the_corner():
+    # the one collision of the campaign at 5e9dc79: the floor gives 0.36-0.49 m/s^2 of grip,
+    # the model brakes at 1.5; the robot reached 0.93 m/s and slid 10 cm out of its corridor
+    from sanav_mj.eval.episode import run_scenario
+    from sanav_mj.sim.mismatch import parse_mismatch
+
+    doc = run_scenario("double_rect", seed=1, mismatch=parse_mismatch(["friction=0.05"])).document
+    assert doc["collisions"] == 0
+    assert doc["success"] and doc["reason"] == "goal"
