@@ -139,10 +139,13 @@ class ActuationMonitor:
     in range reaches the command of its delay within a period, scaled by its gain. Once
     slip is seen, the largest speed change per period measured so far (``peak_dv``, a
     lower bound of the grip; at friction 0.05 it reads 0.045-0.049 m/s per period, about
-    the grip) is the estimate of the acceleration the floor gives. A grippy plant that
-    still raised the flag (a delay beyond ``max_delay``, a gain below 0.86 at top speed)
-    has a ``peak_dv`` of about the model's rate bound from its start-up ramp, so the
-    estimate would barely limit it.
+    the grip) is the estimate of the acceleration the floor gives. A grippy plant can
+    still raise the flag when its gain error leaves more than ``slip_gap`` at speed (a
+    gain below 0.86 or above 1.14 at top speed: wheel radius 0.6-0.7 and 1.3-1.4 in
+    docs/robustness.md) or its delay exceeds ``max_delay``; flagged after its start-up
+    ramp, its ``peak_dv`` is near the model's rate bound and the estimate barely limits
+    it, but flagged before any speed change at a low yaw rate (wheel radius 1.3, 7 of 20
+    runs) the caller's bound falls to its floor until it recovers.
     """
 
     def __init__(self, config: MonitorConfig = MonitorConfig()):

@@ -803,8 +803,9 @@ class SAMPC:
     bound derived from ``a_max`` follows, per solve: the rate constraints, the speed bounds
     implied by the terminal stop (so each plan can stop inside its stage boxes at the
     grip the plant showed) and the braking fallback. Without slip the bound recovers by
-    ``traction_recovery`` per step. In a plant with grip the flag is never raised (no run of
-    the envelope, nor the nominal runs), so nothing changes there.
+    ``traction_recovery`` per step. In the envelope and the nominal runs the flag is never
+    raised, so nothing changes there (every run bit-identical); a plant whose gain error
+    exceeds about 15 % at speed is flagged like a slipping one (docs/robustness.md).
 
     **Pose filter.** Before anything else the measured pose is fused with the measured body
     velocity by a :class:`~sanav_mj.control.monitor.PoseFilter` (an EKF whose measurement
