@@ -122,8 +122,10 @@ def run_campaign(out: Path, sweeps: list[Sweep], seeds_envelope: int, seeds_beyo
         print(f"[{sw.name}] {' '.join(sw.sweep)} {' '.join(sw.fixed)} x {len(SCENARIOS)} scenarios x {seeds} seeds",
               file=sys.stderr, flush=True)
         t0 = time.perf_counter()
+        # A sweep interrupted part-way left its journal (runs.jsonl) and meta.json: resume it.
+        partial = resume and (folder / "meta.json").exists()
         run_robustness(list(SCENARIOS), parse_sweep(list(sw.sweep)), seeds, "sa-mpc", workers, folder,
-                       time_limit_s=time_limit_s, fixed=parse_mismatch(list(sw.fixed)))
+                       time_limit_s=time_limit_s, fixed=parse_mismatch(list(sw.fixed)), resume=partial)
         walls[sw.name] = time.perf_counter() - t0
         info = {"commit": _git("rev-parse", "--short", "HEAD"), "local_changes": _dirty(), "seeds": seeds,
                 "wall_s": round(walls[sw.name], 1), "workers": workers, "time_limit_s": time_limit_s,
@@ -302,7 +304,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--time-limit", type=float, default=60.0, help="[s] simulated time limit of each run")
     p.add_argument("--only", nargs="+", metavar="NAME",
                    help="sweep names, or 'envelope' / 'beyond' for a whole group")
-    p.add_argument("--resume", action="store_true", help="skip sweeps whose summary.csv exists")
+    p.add_argument("--resume", action="store_true",
+                   help="skip sweeps whose summary.csv exists and finish interrupted ones from their journal")
     p.add_argument("--report-only", action="store_true", help="only rebuild summary.md from the CSVs")
     args = p.parse_args(argv)
     if args.workers < 1 or args.seeds_envelope < 1 or args.seeds_beyond < 1 or args.time_limit <= 0:
@@ -316,8 +319,14 @@ def main(argv: list[str] | None = None) -> int:
     sweeps = [sw for sw in CAMPAIGN if not wanted or sw.name in wanted or sw.group in wanted]
     walls = {}
     if not args.report_only:
-        walls = run_campaign(args.out, sweeps, args.seeds_envelope, args.seeds_beyond, args.workers,
-                             args.time_limit, args.resume)
+        from sanav_mj.eval.campaign import CampaignInterrupted
+
+        try:
+            walls = run_campaign(args.out, sweeps, args.seeds_envelope, args.seeds_beyond, args.workers,
+                                 args.time_limit, args.resume)
+        except CampaignInterrupted as exc:
+            print(f"robustness_campaign: {exc}; run the same command with --resume to finish", file=sys.stderr)
+            return 130
     args_line = "python scripts/robustness_campaign.py " + " ".join(argv if argv is not None else sys.argv[1:])
     path = write_report(args.out, list(CAMPAIGN), walls, args_line)
     print(f"wrote {path}")
