@@ -1222,22 +1222,7 @@ class SAMPC:
         xs = rollout_np(x0, u, self.dt)
         s = assign_stages(self.chain, xs[:, :2], self._first_candidates(), tol=self._check_tol)
         boxes, _ = self._relaxed_boxes(stage_boxes(self.chain, s), x0[:2])
-        self._active = _Plan(u, 1)
-        self._s_prev = s
-        self._u_prev = u[0].copy()
-        self._count("turn")
-        margins = np.concatenate(([box_slack(x0[None, :2], boxes[:1])[0]], box_slack(xs[1:, :2], boxes[1:])))
-        v, w = self._send(u[0])
-        return Command(
-            v=v,
-            w=w,
-            solve_ms=(time.perf_counter() - t0) * 1e3,
-            status="turn",
-            ok=True,
-            predicted=xs,
-            rect_ids=self._rect_ids(s, xs[:, :2]),
-            margins=margins,
-        )
+        return self._accept(_Plan(u, 1), xs, s, boxes, x0, t0, "turn")
 
     # ---------------------------------------------------------------- mismatch handling
 
@@ -1380,15 +1365,10 @@ class SAMPC:
         z_lb_plain, z_ub_plain = z_lb.copy(), z_ub.copy()
         cap = min(self.speed_cap(excursion), self.residual_cap())
         if cap < self.limits.v_max:
-            # slow down to the cap at the rate bound (never asks for more than the rate allows)
-            z_ub[0::2] = np.minimum(z_ub[0::2], np.maximum(cap, u_prev[0::2] - self._reach[0::2]))
-            z_lb[0::2] = np.maximum(z_lb[0::2], np.minimum(-cap, u_prev[0::2] + self._reach[0::2]))
-            z_lb = np.minimum(z_lb, z_ub)
+            z_lb = self._derate(z_lb, z_ub, u_prev, 0, cap)
         wcap = self.residual_yaw_cap()
         if wcap < self.limits.w_max:
-            z_ub[1::2] = np.minimum(z_ub[1::2], np.maximum(wcap, u_prev[1::2] - self._reach[1::2]))
-            z_lb[1::2] = np.maximum(z_lb[1::2], np.minimum(-wcap, u_prev[1::2] + self._reach[1::2]))
-            z_lb = np.minimum(z_lb, z_ub)
+            z_lb = self._derate(z_lb, z_ub, u_prev, 1, wcap)
         if self.config.fallback_derated:
             z_lb_plain, z_ub_plain = z_lb, z_ub
         g_lb = np.concatenate((boxes_c[1:, :2].ravel(), self._rate_lb))
@@ -1425,13 +1405,35 @@ class SAMPC:
             status = "inexact"
         else:
             return self._fallback(x0, t0, s, boxes_c, f"rejected:{res.status}:viol={viol:.2e}", problem)
-        u = z.reshape(n, 2)
-        self._active = _Plan(u.copy(), 1, np.asarray(res.y, float), res.y_z)
+        plan = _Plan(z.reshape(n, 2).copy(), 1, np.asarray(res.y, float), res.y_z)
+        return self._accept(plan, xs, s, boxes_c, x0, t0, status)
+
+    def _derate(self, z_lb: np.ndarray, z_ub: np.ndarray, u_prev: np.ndarray, col: int, cap: float) -> np.ndarray:
+        """Lower the bound of input ``col`` (0: v [m/s], 1: w [rad/s]) to ``|u| <= cap``, reached at
+        the rate bound from ``u_prev`` (2N,) (never asks for more than the rate allows).
+
+        Updates ``z_ub`` (2N,) in place and returns the new ``z_lb`` (2N,), kept <= ``z_ub``.
+        """
+        sl = slice(col, None, 2)
+        z_ub[sl] = np.minimum(z_ub[sl], np.maximum(cap, u_prev[sl] - self._reach[sl]))
+        z_lb[sl] = np.maximum(z_lb[sl], np.minimum(-cap, u_prev[sl] + self._reach[sl]))
+        return np.minimum(z_lb, z_ub)
+
+    def _accept(
+        self, plan: _Plan, xs: np.ndarray, s: np.ndarray, boxes: np.ndarray, x0: np.ndarray, t0: float, status: str
+    ) -> Command:
+        """Make ``plan`` (its inputs (N, 2)) the active plan and send its first input.
+
+        ``xs`` (N+1, 3) is its rollout from ``x0`` (3,), ``s`` (N+1,) the stage assignment and
+        ``boxes`` (N+1, 4) [m] the stage boxes as imposed; ``t0`` the step's start
+        (``time.perf_counter``). Returns the command with prediction, rectangle ids and margins.
+        """
+        self._active = plan
         self._s_prev = s
-        self._u_prev = u[0].copy()
+        self._u_prev = plan.u[0].copy()
         self._count(status)
-        margins = np.concatenate(([box_slack(x0[None, :2], boxes_c[:1])[0]], box_slack(xs[1:, :2], boxes_c[1:])))
-        v, w = self._send(u[0])
+        margins = np.concatenate(([box_slack(x0[None, :2], boxes[:1])[0]], box_slack(xs[1:, :2], boxes[1:])))
+        v, w = self._send(plan.u[0])
         return Command(
             v=v,
             w=w,
