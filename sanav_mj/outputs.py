@@ -12,8 +12,10 @@ the temporary file), so the one-line message names the file the user asked for.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
-import tempfile
+import secrets
+import stat
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -53,11 +55,9 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         return
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=_TMP_SUFFIX, dir=path.parent)
-        os.close(fd)
+        tmp = _create_beside(path)
     except OSError as exc:
         raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
-    tmp = Path(tmp_name)
     try:
         yield tmp
         os.replace(tmp, path)
@@ -67,6 +67,28 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     except BaseException:
         _unlink(tmp)
         raise
+
+
+def _create_beside(path: Path) -> Path:
+    """Create an empty ``.NAME.<random>.part`` beside ``path`` with the mode a plain write gives:
+    the existing file's, else 0o666 less the umask (``tempfile.mkstemp`` would give 0o600)."""
+    try:
+        mode = stat.S_IMODE(path.stat().st_mode)
+    except OSError:
+        mode = None
+    for _ in range(100):
+        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}{_TMP_SUFFIX}")
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            continue
+        try:
+            if mode is not None:
+                os.fchmod(fd, mode)
+        finally:
+            os.close(fd)
+        return tmp
+    raise FileExistsError(errno.EEXIST, "no free temporary file name", str(path))
 
 
 def _unlink(p: Path) -> None:

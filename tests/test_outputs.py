@@ -62,3 +62,16 @@ def test_a_folder_that_cannot_be_created_names_the_file(tmp_path):
     with pytest.raises(OSError) as err:
         write_text(tmp_path / "f" / "sub" / "a.json", "{}")
     assert err.value.filename == str(tmp_path / "f" / "sub" / "a.json")
+
+
+def test_the_file_mode_is_that_of_a_plain_write(tmp_path):
+    import os
+    import stat
+
+    plain = tmp_path / "plain"
+    plain.write_text("x")
+    path = write_text(tmp_path / "atomic", "x")
+    assert stat.S_IMODE(path.stat().st_mode) == stat.S_IMODE(plain.stat().st_mode)  # umask applies, not 0o600
+    os.chmod(path, 0o640)
+    write_text(path, "y")
+    assert stat.S_IMODE(path.stat().st_mode) == 0o640  # an existing file keeps its mode
