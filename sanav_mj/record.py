@@ -1,10 +1,13 @@
 """Rerun recordings of episodes: the map and plan once, then the run step by step.
 
 A :class:`Recorder` owns an explicit :class:`rerun.RecordingStream` (never the global one)
-that streams to an ``.rrd`` file. It is driven from the edge of the pipeline
-(:func:`sanav_mj.eval.episode.run_scenario`): the constructor logs the static scene, the
+that encodes into memory; :meth:`Recorder.close` writes the ``.rrd`` file whole or not at
+all (a write error such as a full disk is raised naming the file; Ctrl-C leaves no partial
+file). It is driven from the edge of the pipeline: either step by step
+(:func:`sanav_mj.eval.episode.run_scenario`: the constructor logs the static scene, the
 runner's ``on_step(step, trace)`` hook feeds :meth:`Recorder.log_step`, and
-:meth:`Recorder.finish` logs the summary and closes the file. Algorithms never log.
+:meth:`Recorder.finish` logs the summary and closes the file) or, for a finished run, in one
+call (:func:`record_episode`, what ``sanav-mj run --rrd`` uses). Algorithms never log.
 
 Open a recording with ``rerun FILE.rrd``; the file carries a default blueprint (a 2D map
 beside time-series panels), see ``docs/recordings.md``.
