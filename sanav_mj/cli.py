@@ -478,8 +478,9 @@ def _cmd_robustness(args) -> int:
           f"{args.controller}" + (f", fixed {' '.join(args.fixed)}" if args.fixed else ""), flush=True)
     summary = run_robustness(args.scenarios, sweep, args.seeds, args.controller, args.workers, args.out,
                              time_limit_s=args.time_limit, fixed=fixed, resume=args.resume)
-    for row in summary:
-        print("  ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
+    for row in summary:  # a quantity with no value (NaN: no run ran, or none has a clearance) is n/a
+        print("  ".join(f"{k}={'n/a' if math.isnan(v) else format(v, '.3g')}" if isinstance(v, float) else f"{k}={v}"
+                        for k, v in row.items()))
     per = " (pooled; per scenario in summary_by_scenario.csv and per_scenario/)" if any(
         r["scenario"] != POOLED for r in summary) else ""
     print(f"wrote {args.out}/robustness.csv, summary.csv and heat maps{per}")
