@@ -120,3 +120,20 @@ def test_bad_route_is_rejected():
         RouteProgress(np.zeros((3, 3)))
     with pytest.raises(ValueError, match="route"):
         RouteProgress(np.array([[0.0, np.nan]]))
+
+
+def test_runner_and_training_env_share_one_config():
+    """The runner's settings are a TerminationConfig, and NavEnv's default rules are the
+    runner's (issue 13: the DQN trained under other rules than it was evaluated with)."""
+    from dataclasses import fields
+
+    from sanav_mj.sim.runner import RunConfig
+
+    run = RunConfig()
+    assert isinstance(run, TerminationConfig)
+    shared = {f.name: getattr(run, f.name) for f in fields(TerminationConfig)}
+    assert TerminationConfig(**shared) == TerminationConfig()
+    nav_env = pytest.importorskip("sanav_mj.sim.nav_env")
+    assert nav_env.NavEnvConfig().termination == TerminationConfig(**shared)
+    with pytest.raises(ValueError, match="RunConfig.stuck_window_s"):
+        RunConfig(stuck_window_s=0.0)
