@@ -1,6 +1,6 @@
 """sanav-mj: quadtree safe-area MPC (SA-MPC) navigation of a differential-drive robot in MuJoCo.
 
-The data flow is one-way (see docs/ and the design contract):
+The data flow is one-way (see README.md and docs/):
 
     scene -> mapping -> planning -> control -> sim -> eval / record / cli
 

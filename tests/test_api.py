@@ -125,3 +125,11 @@ def test_docs_api_example_runs(capsys):
         exec(compile(block, f"docs/api.md block {i + 1}", "exec"), namespace)
     assert namespace["result"].success
     assert "goal" in capsys.readouterr().out
+
+
+def test_readme_python_section_runs(capsys):
+    text = (ROOT / "README.md").read_text()
+    blocks = python_blocks(text)
+    assert len(blocks) == 1
+    exec(compile(blocks[0], "README.md python block", "exec"), {"__name__": "readme"})
+    assert capsys.readouterr().out.strip()
