@@ -223,9 +223,10 @@ def run_scenario(
 
 
 #: controllers that track the planned route: their ``stuck`` rule measures progress along it.
-#: DWA and the DQN drive to the goal without the plan (and the DQN trains in ``NavEnv``,
-#: which has no planner), so theirs is the straight-line distance to the goal.
-ROUTE_FOLLOWERS = ("sa-mpc", "mpc")
+#: The penalty MPC (reference straight to the goal), DWA and the DQN drive to the goal
+#: without the plan (and the DQN trains in ``NavEnv``, which has no planner), so theirs is
+#: the reduction of the straight-line distance to the goal.
+ROUTE_FOLLOWERS = ("sa-mpc",)
 
 
 def planned_route(plan: Plan, goal: np.ndarray) -> np.ndarray | None:

@@ -16,9 +16,11 @@ One set of rules, one configuration (:class:`TerminationConfig`), used by
 one: the arc length [m] of the robot's projection onto the route polyline
 (:class:`RouteProgress`). A route may have to lead away from the goal (a serpentine maze),
 so the straight-line distance to the goal is the wrong measure there. Without a route
-(a controller that does not track the plan, such as DWA and the DQN, or the training
-environment, which has no planner) the progress is the reduction of the straight-line
-distance to the goal (:class:`GoalDistanceProgress`).
+(a controller that does not track the plan: the penalty MPC, whose reference runs straight
+to the goal, DWA and the DQN; or the training environment, which has no planner) the
+progress is the reduction of the straight-line distance to the goal
+(:class:`GoalDistanceProgress`). Which controllers get the route is decided where the
+episode is composed (:data:`sanav_mj.eval.episode.ROUTE_FOLLOWERS`).
 """
 
 from __future__ import annotations

@@ -26,3 +26,34 @@ def test_serpentine_route_leading_away_from_the_goal_reaches_it(write_scenario):
     assert doc["reason"] == "goal", doc["reason"]
     assert doc["path_length_m"] > 25.0  # it really drove the folds (straight line: 7.6 m)
     assert doc["collisions"] == 0
+
+
+class _Stop(Exception):
+    pass
+
+
+def test_only_sa_mpc_is_judged_along_the_route(monkeypatch):
+    """SA-MPC tracks the plan; the penalty MPC (straight reference), DWA and the DQN do not,
+    so they keep the straight-line progress (the DQN's training rule)."""
+    import numpy as np
+
+    import sanav_mj.sim.runner as runner
+
+    seen = {}
+
+    def spy(*args, route=None, **kwargs):
+        seen["route"] = route
+        raise _Stop
+
+    monkeypatch.setattr(runner, "run_episode", spy)
+    for name, follows in (("sa-mpc", True), ("mpc", False), ("dwa", False), ("dqn", False)):
+        try:
+            run_scenario("single_rect", controller=name, seed=0, controller_obj=object())
+        except _Stop:
+            pass
+        if follows:
+            route = seen["route"]
+            assert route.shape[1] == 2 and route.shape[0] > 10
+            np.testing.assert_array_equal(route[-1], load_scenario("single_rect").goal)
+        else:
+            assert seen["route"] is None, name
