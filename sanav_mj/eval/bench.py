@@ -39,6 +39,7 @@ from typing import Any
 from sanav_mj.eval.campaign import (
     JOURNAL_NAME,
     Job,
+    JobSet,
     check_meta,
     is_error,
     read_journal,
@@ -312,13 +313,13 @@ def run_bench(
     out.mkdir(parents=True, exist_ok=True)
     if record:
         (out / "rrd").mkdir(exist_ok=True)
-    jobs = [
+    jobs = JobSet(lambda: (
         Job(
             scenario=s, controller=c, seed=k, time_limit_s=time_limit_s,
             rrd=str(out / "rrd" / f"{Path(s).stem}_{c}_{k}.rrd") if record else None,
         )
         for s in names for c in controllers for k in range(runs)
-    ]
+    ), len(names) * len(controllers) * runs)
     meta = {"command": "bench", **run_metadata(names, controllers, runs, workers, time_limit_s)}
     begin_campaign(out, meta, resume)
     t0 = time.perf_counter()

@@ -19,6 +19,7 @@ import csv
 import json
 import math
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +33,7 @@ from sanav_mj.eval.bench import (
     run_metadata,
     write_csv,
 )
-from sanav_mj.eval.campaign import JOURNAL_NAME, Job, is_error, run_jobs
+from sanav_mj.eval.campaign import JOURNAL_NAME, Job, JobSet, is_error, run_jobs
 from sanav_mj.sim.mismatch import Mismatch, MismatchError, mismatch_keys
 
 
@@ -130,14 +131,17 @@ def run_robustness(
     base_items = tuple(f"{k}={_fmt(k, v)}" for k, v in base.items())
     out.mkdir(parents=True, exist_ok=True)
     (xk, xv), (yk, yv) = sweep[0], (sweep[1] if len(sweep) > 1 else ("", [math.nan]))
-    jobs = []
-    for yi, y in enumerate(yv):
-        for xi, x in enumerate(xv):
-            items = [f"{xk}={_fmt(xk, x)}"] + ([f"{yk}={_fmt(yk, y)}"] if yk else []) + list(base_items)
-            for s in scenarios:
-                for k in range(seeds):
-                    jobs.append(Job(s, controller, k, tuple(items), time_limit_s, None,
-                                    ((xk, x),) + (((yk, y),) if yk else ()) + (("_cell", (yi, xi)),)))
+
+    def make_jobs() -> Iterator[Job]:  # lazily: a campaign's size does not cost memory up front
+        for yi, y in enumerate(yv):
+            for xi, x in enumerate(xv):
+                items = (f"{xk}={_fmt(xk, x)}",) + ((f"{yk}={_fmt(yk, y)}",) if yk else ()) + base_items
+                tags = ((xk, x),) + (((yk, y),) if yk else ()) + (("_cell", (yi, xi)),)
+                for s in scenarios:
+                    for k in range(seeds):
+                        yield Job(s, controller, k, items, time_limit_s, None, tags)
+
+    jobs = JobSet(make_jobs, len(yv) * len(xv) * len(scenarios) * seeds)
     meta = {"command": "robustness", **run_metadata(scenarios, [controller], seeds, workers, time_limit_s)}
     meta["sweep"] = {k: [float(v) for v in vals] for k, vals in sweep}
     meta["fixed"] = dict(base)
