@@ -82,6 +82,11 @@ def _count(name: str, lo: int = 1, hi: int = 10_000):
     return parse
 
 
+#: help of ``--ray`` (bench, robustness)
+RAY_HELP = ("run the campaign on Ray instead of the local process pool: a local Ray without ADDRESS, else the "
+            "cluster at ADDRESS (auto, HOST:PORT or ray://HOST:PORT); needs pip install -e \".[cluster]\"")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``sanav-mj``."""
     p = _Parser(prog="sanav-mj", description="Quadtree safe-area MPC navigation in MuJoCo.")
@@ -118,6 +123,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--rrd", action="store_true", help="also record each run to OUT/rrd/")
     b.add_argument("--resume", action="store_true",
                    help="keep the finished runs journalled in OUT/runs.jsonl (same settings) and run the rest")
+    b.add_argument("--ray", nargs="?", const=True, default=None, metavar="ADDRESS", help=RAY_HELP)
 
     rb = sub.add_parser("robustness", help="sweep model mismatch over a grid with several seeds")
     rb.add_argument("scenarios", nargs="+")
@@ -133,6 +139,7 @@ def build_parser() -> argparse.ArgumentParser:
     rb.add_argument("--out", type=Path, default=Path("out/robustness"))
     rb.add_argument("--resume", action="store_true",
                     help="keep the finished runs journalled in OUT/runs.jsonl (same settings) and run the rest")
+    rb.add_argument("--ray", nargs="?", const=True, default=None, metavar="ADDRESS", help=RAY_HELP)
     return p
 
 
@@ -317,7 +324,7 @@ def _cmd_bench(args) -> int:
     _check_scenarios(args.scenarios)
     _check_out_dir(args.out)
     summary = run_bench(args.scenarios, args.controllers, args.runs, args.workers, args.out, record=args.rrd,
-                        resume=args.resume)
+                        resume=args.resume, ray=args.ray)
     print(markdown_table(summary), end="")
     print(f"wrote {args.out}/results.csv, table.md, success.png")
     return _raised_runs(summary, args.out / "results.csv")
@@ -362,7 +369,7 @@ def _cmd_robustness(args) -> int:
     _check_scenarios(args.scenarios)
     _check_out_dir(args.out)
     summary = run_robustness(args.scenarios, sweep, args.seeds, args.controller, args.workers, args.out,
-                             time_limit_s=args.time_limit, fixed=fixed, resume=args.resume)
+                             time_limit_s=args.time_limit, fixed=fixed, resume=args.resume, ray=args.ray)
     for row in summary:
         print("  ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
     print(f"wrote {args.out}/robustness.csv, summary.csv and heat maps")
@@ -371,7 +378,7 @@ def _cmd_robustness(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``sanav-mj`` console script; returns the exit code."""
-    from sanav_mj.eval.campaign import CampaignInterrupted, JournalError
+    from sanav_mj.eval.campaign import CampaignInterrupted, ClusterError, JournalError
     from sanav_mj.scene import ScenarioError
     from sanav_mj.sim.mismatch import MismatchError
 
@@ -385,7 +392,7 @@ def main(argv: list[str] | None = None) -> int:
             "robustness": _cmd_robustness,
         }[args.command]
         return handler(args)
-    except (BadInput, ScenarioError, MismatchError, JournalError) as exc:
+    except (BadInput, ScenarioError, MismatchError, JournalError, ClusterError) as exc:
         print(f"sanav-mj: error: {_one_line(str(exc))}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # stdout closed early (``sanav-mj ... | head``): stop quietly, as a shell tool

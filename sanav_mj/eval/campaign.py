@@ -74,6 +74,11 @@ class JournalError(ValueError):
     """A journal that cannot be resumed (unreadable, or written for other settings); one line."""
 
 
+class ClusterError(ValueError):
+    """``ray=`` / ``--ray``: Ray is not installed, or the cluster cannot be reached (one line;
+    raised by :mod:`sanav_mj.eval.ray_runner`)."""
+
+
 class CampaignInterrupted(KeyboardInterrupt):
     """Ctrl-C during :func:`run_jobs`; the finished rows are in the journal.
 

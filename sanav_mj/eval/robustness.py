@@ -29,6 +29,8 @@ from sanav_mj.eval.bench import (
     CSV_COLUMNS,
     _load_average,
     begin_campaign,
+    campaign_executor,
+    describe,
     flatten,
     run_metadata,
     write_csv,
@@ -83,6 +85,7 @@ def run_robustness(
     time_limit_s: float = 60.0,
     fixed: Mismatch = Mismatch(),
     resume: bool = False,
+    ray: str | bool | Any = None,
 ) -> list[dict[str, Any]]:
     """Run the sweep and write CSVs and heat maps into ``out``.
 
@@ -100,6 +103,9 @@ def run_robustness(
         resume: keep the finished runs of ``out/runs.jsonl`` (an interrupted sweep with the
             same settings) and run only the others; the outputs are the same as those of an
             uninterrupted sweep. Without it the journal starts empty.
+        ray: run on Ray instead of the process pool, as in
+            :func:`sanav_mj.eval.bench.run_bench` (True: a local Ray; an address: a cluster;
+            None: the pool of ``workers``); the rows, outputs and journal are the same.
 
     Returns:
         One summary row per grid point: the swept value(s), ``runs`` (that ran to an
@@ -142,12 +148,15 @@ def run_robustness(
                         yield Job(s, controller, k, items, time_limit_s, None, tags)
 
     jobs = JobSet(make_jobs, len(yv) * len(xv) * len(scenarios) * seeds)
-    meta = {"command": "robustness", **run_metadata(scenarios, [controller], seeds, workers, time_limit_s)}
-    meta["sweep"] = {k: [float(v) for v in vals] for k, vals in sweep}
-    meta["fixed"] = dict(base)
-    begin_campaign(out, meta, resume)
-    t0 = time.perf_counter()
-    docs = run_jobs(jobs, workers, desc="robustness", journal=out / JOURNAL_NAME, resume=resume)
+    with campaign_executor(ray) as executor:
+        meta = {"command": "robustness", **run_metadata(scenarios, [controller], seeds, workers, time_limit_s)}
+        meta["sweep"] = {k: [float(v) for v in vals] for k, vals in sweep}
+        meta["fixed"] = dict(base)
+        meta["executor"] = describe(ray)
+        begin_campaign(out, meta, resume)
+        t0 = time.perf_counter()
+        docs = run_jobs(jobs, workers, desc="robustness", journal=out / JOURNAL_NAME, resume=resume,
+                        executor=executor)
     meta["wall_time_s"] = time.perf_counter() - t0
     meta["load_average_end"] = _load_average()
     (out / "meta.json").write_text(json.dumps(meta, indent=1))
