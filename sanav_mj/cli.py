@@ -16,6 +16,7 @@ import argparse
 import json
 import math
 import os
+import re
 import sys
 from pathlib import Path
 from typing import NoReturn
@@ -87,6 +88,14 @@ RAY_HELP = ("run the campaign on Ray instead of the local process pool: a local 
             "cluster at ADDRESS (auto, HOST:PORT or ray://HOST:PORT); needs pip install -e \".[cluster]\"")
 
 
+def _ray_address(text: str) -> str:
+    """argparse type of ``--ray ADDRESS``: ``auto``, ``HOST:PORT`` or ``ray://HOST:PORT``."""
+    if text == "auto" or re.fullmatch(r"(ray://)?[A-Za-z0-9.\-\[\]:]+:\d{1,5}", text):
+        return text
+    raise argparse.ArgumentTypeError(f"--ray: expected auto, HOST:PORT or ray://HOST:PORT, got {text!r} "
+                                     "(a scenario? put --ray after the scenarios)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``sanav-mj``."""
     p = _Parser(prog="sanav-mj", description="Quadtree safe-area MPC navigation in MuJoCo.")
@@ -123,7 +132,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--rrd", action="store_true", help="also record each run to OUT/rrd/")
     b.add_argument("--resume", action="store_true",
                    help="keep the finished runs journalled in OUT/runs.jsonl (same settings) and run the rest")
-    b.add_argument("--ray", nargs="?", const=True, default=None, metavar="ADDRESS", help=RAY_HELP)
+    b.add_argument("--ray", nargs="?", const=True, default=None, metavar="ADDRESS",
+                   type=_ray_address, help=RAY_HELP)
 
     rb = sub.add_parser("robustness", help="sweep model mismatch over a grid with several seeds")
     rb.add_argument("scenarios", nargs="+")
@@ -139,7 +149,8 @@ def build_parser() -> argparse.ArgumentParser:
     rb.add_argument("--out", type=Path, default=Path("out/robustness"))
     rb.add_argument("--resume", action="store_true",
                     help="keep the finished runs journalled in OUT/runs.jsonl (same settings) and run the rest")
-    rb.add_argument("--ray", nargs="?", const=True, default=None, metavar="ADDRESS", help=RAY_HELP)
+    rb.add_argument("--ray", nargs="?", const=True, default=None, metavar="ADDRESS",
+                   type=_ray_address, help=RAY_HELP)
     return p
 
 

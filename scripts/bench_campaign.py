@@ -7,7 +7,7 @@
         first run and after N runs.
 
     python scripts/bench_campaign.py throughput [--scenarios ...] [--runs N] [--workers W]
-        The same bench campaign (dwa, time limit 20 s) on the process pool and on a local
+        The same bench campaign (sa-mpc, time limit 30 s) on the process pool and on a local
         Ray with W CPUs: runs per minute for each and Ray's overhead per run, with a
         trivial job function too (the pure overhead of dispatching a run).
 
@@ -83,40 +83,41 @@ def memory(runs: int) -> None:
         print(f"  {name:24s} RSS {rss:7.1f} MB   peak {peak:7.1f} MB")
 
 
-def throughput(scenarios: list[str], runs: int, workers: int) -> None:
+def throughput(scenarios: list[str], runs: int, workers: int, controller: str, repeats: int) -> None:
     from sanav_mj.eval import campaign
     from sanav_mj.eval.bench import run_bench
     from sanav_mj.eval.ray_runner import RayExecutor, ray_session
 
     n = len(scenarios) * runs
-    print(f"bench {' '.join(scenarios)} x dwa x {runs} runs = {n} runs, {workers} workers, load {_load()}")
-    figures = {}
+    print(f"bench {' '.join(scenarios)} x {controller} x {runs} runs = {n} runs, {workers} workers, "
+          f"load {_load()}")
+    walls: dict[str, list[float]] = {"pool": [], "ray": [], "pool trivial": [], "ray trivial": []}
+    jobs = [campaign.Job(s, controller, k) for s in scenarios for k in range(runs * 10)]
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        run_bench(scenarios, ["dwa"], runs, workers, Path(tmp) / "pool", time_limit_s=20.0)
-        figures["pool"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
         with ray_session(None, num_cpus=workers) as session:
-            figures["ray start"] = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            run_bench(scenarios, ["dwa"], runs, workers, Path(tmp) / "ray", time_limit_s=20.0, ray=session)
-            figures["ray"] = time.perf_counter() - t0
-            # the pure dispatch cost: the same number of trivial jobs through each executor
-            jobs = [campaign.Job(s, "dwa", k) for s in scenarios for k in range(runs * 10)]
-            t0 = time.perf_counter()
-            campaign.run_jobs(jobs, workers, runner=trivial_run)
-            figures["pool trivial"] = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            campaign.run_jobs(jobs, executor=RayExecutor(session, runner=trivial_run))
-            figures["ray trivial"] = time.perf_counter() - t0
-    print(f"  pool: {figures['pool']:.1f} s = {60 * n / figures['pool']:.1f} runs/min")
-    print(f"  ray:  {figures['ray']:.1f} s = {60 * n / figures['ray']:.1f} runs/min "
-          f"(plus {figures['ray start']:.1f} s to start the local Ray)")
-    print(f"  ray - pool per run: {1e3 * (figures['ray'] - figures['pool']) / n:+.0f} ms "
-          f"(x{workers} workers: {1e3 * workers * (figures['ray'] - figures['pool']) / n:+.0f} ms of worker time)")
+            start = time.perf_counter() - t0
+            for rep in range(repeats):  # alternate, so a change of the machine's load hits both alike
+                for name in ("pool", "ray"):
+                    t0 = time.perf_counter()
+                    run_bench(scenarios, [controller], runs, workers, Path(tmp) / f"{name}{rep}", time_limit_s=30.0,
+                              ray=session if name == "ray" else None)
+                    walls[name].append(time.perf_counter() - t0)
+                # the pure dispatch cost: trivial jobs through each executor
+                t0 = time.perf_counter()
+                campaign.run_jobs(jobs, workers, runner=trivial_run)
+                walls["pool trivial"].append(time.perf_counter() - t0)
+                t0 = time.perf_counter()
+                campaign.run_jobs(jobs, executor=RayExecutor(session, runner=trivial_run))
+                walls["ray trivial"].append(time.perf_counter() - t0)
+    for name in ("pool", "ray"):
+        print(f"  {name:4s}: " + ", ".join(f"{w:.1f} s = {60 * n / w:.0f} runs/min" for w in walls[name]))
+    print(f"  local Ray start-up: {start:.1f} s (once per session)")
+    diff = [(r - p) / n for p, r in zip(walls["pool"], walls["ray"])]
+    print("  (ray - pool) wall per run: " + ", ".join(f"{1e3 * d:+.0f} ms" for d in diff))
     m = len(jobs)
-    print(f"  trivial job x {m}: pool {1e3 * figures['pool trivial'] / m:.2f} ms/run, "
-          f"ray {1e3 * figures['ray trivial'] / m:.2f} ms/run (wall, {workers} workers)")
+    print(f"  trivial job x {m} (no simulation): pool " + ", ".join(f"{1e3 * w / m:.2f}" for w in walls["pool trivial"])
+          + " ms/run; ray " + ", ".join(f"{1e3 * w / m:.2f}" for w in walls["ray trivial"]) + " ms/run (wall)")
     print(f"  load at the end {_load()}")
 
 
@@ -129,11 +130,13 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--scenarios", nargs="+", default=["single_rect", "double_rect", "u_shape"])
     t.add_argument("--runs", type=int, default=4)
     t.add_argument("--workers", type=int, default=2)
+    t.add_argument("--controller", default="sa-mpc")
+    t.add_argument("--repeats", type=int, default=2)
     args = p.parse_args(argv)
     if args.what == "memory":
         memory(args.runs)
     else:
-        throughput(args.scenarios, args.runs, args.workers)
+        throughput(args.scenarios, args.runs, args.workers, args.controller, args.repeats)
     return 0
 
 

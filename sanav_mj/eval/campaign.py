@@ -4,6 +4,13 @@ Shared by ``bench`` and ``robustness``: a job is a small picklable :class:`Job`;
 process loads (and caches) scenarios and their maps once, runs its jobs and returns the
 JSON summaries without the trace (traces stay in the worker unless asked for).
 
+The jobs are generated lazily and at most a few per worker are in flight (see
+:func:`run_jobs`), so a campaign's size costs no memory before its first run. They run on an
+:class:`Executor`: this process, a process pool (default), or Ray
+(:mod:`sanav_mj.eval.ray_runner`); the journal, resume, error rows and Ctrl-C below are the
+same on each. Pool workers end when the parent process dies, even by SIGKILL
+(:func:`exit_with_parent`).
+
 Nothing finished is lost:
 
 - **Journal.** With ``journal=PATH`` every finished row is appended to ``PATH`` (one JSON
@@ -12,6 +19,8 @@ Nothing finished is lost:
   whose run raised are run again); the rows returned are the journal's plus the new ones
   in the order of the jobs, the same as an uninterrupted campaign (every row, new or
   journalled, goes through one JSON round trip). ``resume=False`` starts a new journal.
+  Lines are strict JSON (:func:`dumps`: a non-finite float is ``{"$float": "nan"}``), and
+  every row is checked (:func:`check_row`) before any job runs.
 - **A run that raises** (any :class:`Exception` in :func:`run_job`, or a worker process
   that dies) does not stop the campaign: it becomes a row with ``reason`` ``"error"``
   (:data:`ERROR_REASON`), ``success`` False and the exception's one-line message in

@@ -123,7 +123,8 @@ def scenario_bundle(spec: str | Path) -> ScenarioBundle:
             text = contents[p].decode("utf-8", errors="surrogateescape")
             for target, value in absolute:
                 rel = os.path.relpath(target, main.parent).replace(os.sep, "/")
-                text = re.sub(r'(file\s*=\s*)(["\'])' + re.escape(value) + r"\2", lambda m: f"{m.group(1)}\"{rel}\"", text)
+                pattern = r'(file\s*=\s*)(["\'])' + re.escape(value) + r"\2"
+                text = re.sub(pattern, lambda m, rel=rel: f'{m.group(1)}"{rel}"', text)
             contents[p] = text.encode("utf-8", errors="surrogateescape")
     files = tuple(sorted((p.relative_to(root).as_posix(), data) for p, data in contents.items()))
     h = hashlib.sha256()
@@ -216,8 +217,8 @@ def ray_session(address: str | None = None, num_cpus: int | None = None) -> Iter
                                   "logging_level": logging.ERROR, "configure_logging": True}
         if address:
             kwargs["address"] = address
-        else:
-            kwargs["num_cpus"] = num_cpus
+        else:  # a new local instance, even where a cluster runs (ray.init() alone would join that)
+            kwargs.update(address="local", num_cpus=num_cpus)
         try:
             with _quiet_stderr():
                 ray.init(**kwargs)

@@ -74,7 +74,9 @@ def test_without_ray_the_option_is_one_line_exit_2(tmp_path, monkeypatch, capsys
 def session():
     import ray
 
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
+    # "local": a new instance even where a cluster runs (or a stale /tmp/ray/ray_current_cluster remains)
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False,
+             logging_level=logging.ERROR)
     try:
         with ray_session() as s:  # uses the running instance, leaves it open
             assert s.cpus == 2
@@ -163,3 +165,17 @@ def test_ctrl_c_on_ray_cancels_the_tasks_keeps_the_finished_and_resumes(tmp_path
     run_bench(*args, workers=2, out=out, time_limit_s=10.0, ray=session, resume=True)
     run_bench(*args, workers=2, out=tmp_path / "whole", time_limit_s=10.0)
     assert _csv(out / "results.csv") == _csv(tmp_path / "whole" / "results.csv")
+
+
+def test_the_ray_option_takes_an_address_not_a_scenario(capsys):
+    from sanav_mj.cli import build_parser, main
+
+    parse = build_parser().parse_args
+    assert parse(["bench", "u_shape", "--ray"]).ray is True
+    assert parse(["bench", "--ray", "auto"]).ray == "auto"
+    assert parse(["robustness", "u_shape", "--ray", "ray://10.1.2.3:10001"]).ray == "ray://10.1.2.3:10001"
+    assert parse(["robustness", "u_shape", "--ray", "head-node:6379"]).ray == "head-node:6379"
+    assert parse(["bench", "u_shape"]).ray is None
+    assert main(["bench", "--ray", "u_shape"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "expected auto, HOST:PORT or ray://HOST:PORT, got 'u_shape'" in err
