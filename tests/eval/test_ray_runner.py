@@ -68,6 +68,23 @@ def test_without_ray_the_option_is_one_line_exit_2(tmp_path, monkeypatch, capsys
     assert not (out / "meta.json").exists() and not (out / "runs.jsonl").exists()  # nothing written
 
 
+def test_the_cli_starts_a_local_ray_quietly(tmp_path):
+    """Ray's start-up and shut-down print nothing on the command's stderr (only the progress bar)."""
+    import os
+    import subprocess
+
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [os.getcwd(), os.environ.get("PYTHONPATH")])))
+    out = tmp_path / "b"
+    proc = subprocess.run([sys.executable, "-m", "sanav_mj.cli", "bench", "single_rect", "--controllers", "dwa",
+                           "--runs", "1", "--out", str(out), "--ray"], env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lines = [line for line in proc.stderr.replace("\r", "\n").splitlines() if line.strip()]
+    assert lines and all(line.startswith("bench:") for line in lines), lines  # tqdm's bar, nothing else
+    assert json.loads((out / "meta.json").read_text())["executor"] == "ray"
+    assert len(read_journal(out / "runs.jsonl")) == 1
+
+
 # --------------------------------------------------------------------------- on a real local Ray
 
 @pytest.fixture(scope="module")
