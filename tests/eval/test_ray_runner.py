@@ -196,3 +196,36 @@ def test_the_ray_option_takes_an_address_not_a_scenario(capsys):
     assert main(["bench", "--ray", "u_shape"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "expected auto, HOST:PORT or ray://HOST:PORT, got 'u_shape'" in err
+
+
+def test_ray_takes_jobs_lazily_with_two_per_cpu_in_flight(tmp_path, session, monkeypatch):
+    taken = []
+
+    def make():
+        k = 0
+        while True:
+            taken.append(k)
+            yield Job("single_rect", "dwa", k, (), 3.0)
+            k += 1
+
+    finished = []
+
+    class Bar:  # Ctrl-C when the third row has been journalled
+        def __init__(self, *a, total=None, **kw):
+            assert total == 10**9
+
+        def update(self, k=1):
+            finished.append(k)
+            if len(finished) == 3:
+                raise KeyboardInterrupt
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(campaign, "tqdm", Bar)
+    executor = RayExecutor(session)
+    assert executor.slots == 4  # 2 x the 2 CPUs
+    with pytest.raises(CampaignInterrupted) as info:
+        run_jobs(campaign.JobSet(make, 10**9), journal=tmp_path / "runs.jsonl", executor=executor)
+    assert info.value.saved == 3 and len(read_journal(tmp_path / "runs.jsonl")) == 3
+    assert 3 + 1 <= len(taken) <= 3 + executor.slots  # the finished ones plus at most 4 in flight
