@@ -231,12 +231,9 @@ def dumps(value: Any) -> str:
 
 
 def loads(text: str) -> Any:
-    """Read what :func:`dumps` wrote (``{"$float": ...}`` becomes the float again)."""
-    return json.loads(text, object_hook=_decode_object, parse_constant=_reject_constant)
-
-
-def _reject_constant(name: str) -> Any:
-    raise ValueError(f"{name} is not JSON")
+    """Read what :func:`dumps` wrote (``{"$float": ...}`` becomes the float again). The bare
+    ``NaN`` / ``Infinity`` tokens of journals written before are read too."""
+    return json.loads(text, object_hook=_decode_object)
 
 
 def _round_trip(row: dict[str, Any]) -> dict[str, Any]:

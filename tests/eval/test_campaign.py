@@ -296,6 +296,11 @@ def test_nan_is_written_as_strict_json_and_read_back(tmp_path):
     assert math.isnan(rows[0]["min_clearance_m"])
     resumed = run_jobs(jobs, workers=1, journal=journal, resume=True, runner=None)  # nothing left to run
     assert resumed[1]["path_length_m"] == math.inf
+    # a journal written before, with bare NaN tokens, still resumes, and is rewritten strictly
+    journal.write_text(journal.read_text().replace('{"$float": "nan"}', "NaN"))
+    assert "NaN" in journal.read_text()
+    assert math.isnan(run_jobs(jobs, workers=1, journal=journal, resume=True, runner=None)[0]["min_clearance_m"])
+    assert "NaN" not in journal.read_text() and '{"$float": "nan"}' in journal.read_text()
 
 
 def test_resume_cli_exit_2_one_line_naming_the_line(tmp_path, monkeypatch, capsys):
