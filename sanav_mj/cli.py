@@ -16,6 +16,7 @@ import argparse
 import json
 import math
 import os
+import re
 import sys
 from pathlib import Path
 from typing import NoReturn
@@ -126,6 +127,19 @@ def mismatch_help() -> str:
 DEFAULT_SWEEP = ("wheel_radius=0.9,1.0,1.1",)
 
 
+#: help of ``--ray`` (bench, robustness)
+RAY_HELP = ("run the campaign on Ray instead of the local process pool: a local Ray without ADDRESS, else the "
+            "cluster at ADDRESS (auto, HOST:PORT or ray://HOST:PORT); needs pip install -e \".[cluster]\" (default: the local process pool)")
+
+
+def _ray_address(text: str) -> str:
+    """argparse type of ``--ray ADDRESS``: ``auto``, ``HOST:PORT`` or ``ray://HOST:PORT``."""
+    if text == "auto" or re.fullmatch(r"(ray://)?[A-Za-z0-9.\-\[\]:]+:\d{1,5}", text):
+        return text
+    raise argparse.ArgumentTypeError(f"--ray: expected auto, HOST:PORT or ray://HOST:PORT, got {text!r} "
+                                     "(a scenario? put --ray after the scenarios)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``sanav-mj``; every option's help states its default and unit."""
     p = _Parser(prog="sanav-mj", description="Quadtree safe-area MPC navigation in MuJoCo.",
@@ -180,6 +194,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="output folder (default: %(default)s)")
     b.add_argument("--rrd", action="store_true", help="also record each run to OUT/rrd/ (default: no)")
     b.add_argument("--resume", action="store_true", help=resume_help)
+    b.add_argument("--ray", nargs="?", const=True, default=None, metavar="ADDRESS",
+                   type=_ray_address, help=RAY_HELP)
 
     keys = ", ".join(_mismatch_key_names())
     rb = sub.add_parser("robustness", help="sweep model mismatch over a grid with several seeds")
@@ -199,6 +215,8 @@ def build_parser() -> argparse.ArgumentParser:
     rb.add_argument("--out", type=_output_arg("--out"), default=Path("out/robustness"), metavar="DIR",
                     help="output folder (default: %(default)s)")
     rb.add_argument("--resume", action="store_true", help=resume_help)
+    rb.add_argument("--ray", nargs="?", const=True, default=None, metavar="ADDRESS",
+                   type=_ray_address, help=RAY_HELP)
     return p
 
 
@@ -428,7 +446,7 @@ def _cmd_bench(args) -> int:
     _check_scenarios(args.scenarios)
     _check_out_dir(args.out)
     summary = run_bench(args.scenarios, args.controllers, args.runs, args.workers, args.out, record=args.rrd,
-                        resume=args.resume)
+                        resume=args.resume, ray=args.ray)
     print(markdown_table(summary), end="")
     print(f"wrote {args.out}/results.csv, table.md, success.png")
     return _raised_runs(summary, args.out / "results.csv")
@@ -477,7 +495,7 @@ def _cmd_robustness(args) -> int:
     print(f"robustness: sweeping {grid}{default}, {args.seeds} seed(s) per point and scenario, controller "
           f"{args.controller}" + (f", fixed {' '.join(args.fixed)}" if args.fixed else ""), flush=True)
     summary = run_robustness(args.scenarios, sweep, args.seeds, args.controller, args.workers, args.out,
-                             time_limit_s=args.time_limit, fixed=fixed, resume=args.resume)
+                             time_limit_s=args.time_limit, fixed=fixed, resume=args.resume, ray=args.ray)
     for row in summary:  # a quantity with no value (NaN: no run ran, or none has a clearance) is n/a
         print("  ".join(f"{k}={'n/a' if math.isnan(v) else format(v, '.3g')}" if isinstance(v, float) else f"{k}={v}"
                         for k, v in row.items()))
@@ -489,7 +507,7 @@ def _cmd_robustness(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``sanav-mj`` console script; returns the exit code."""
-    from sanav_mj.eval.campaign import CampaignInterrupted, JournalError
+    from sanav_mj.eval.campaign import CampaignInterrupted, ClusterError, JournalError
     from sanav_mj.scene import ScenarioError
     from sanav_mj.sim.mismatch import MismatchError
 
@@ -507,7 +525,7 @@ def main(argv: list[str] | None = None) -> int:
             "robustness": _cmd_robustness,
         }[args.command]
         return handler(args)
-    except (BadInput, ScenarioError, MismatchError, JournalError) as exc:
+    except (BadInput, ScenarioError, MismatchError, JournalError, ClusterError) as exc:
         print(f"sanav-mj: error: {_one_line(str(exc))}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # stdout closed early (``sanav-mj ... | head``): stop quietly, as a shell tool

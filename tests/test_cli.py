@@ -112,13 +112,16 @@ def test_console_script_module_entry():
 
 def _fake_doc(job):
     """A run document (no simulation): success unless the run has a delay."""
+    from sanav_mj.sim.mismatch import parse_mismatch
+
     mismatch = dict(item.split("=") for item in job.mismatch)
     stats = {"mean": 1.0, "max": 2.0, "std": 0.5, "p50": 1.0, "p99": 2.0}
     return {
         "scenario": job.scenario, "controller": job.controller, "seed": job.seed,
         "success": "delay" not in mismatch, "reason": "goal" if "delay" not in mismatch else "stuck",
         "steps": 10, "sim_time_s": 1.0, "path_length_m": 1.0, "min_clearance_m": 0.2, "collisions": 0,
-        "safe_area_violations": 0, "solve_ms": stats, "pipeline_ms": stats, "mismatch": mismatch,
+        "safe_area_violations": 0, "solver_failures": 0, "solve_ms": stats, "pipeline_ms": stats,
+        "mismatch": parse_mismatch(list(job.mismatch)).changed(),  # as a run writes it (resume checks it)
         **dict(job.tags),
     }
 

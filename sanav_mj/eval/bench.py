@@ -23,6 +23,7 @@ first step.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
@@ -31,7 +32,7 @@ import platform
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -39,6 +40,7 @@ from typing import Any
 from sanav_mj.eval.campaign import (
     JOURNAL_NAME,
     Job,
+    JobSet,
     check_meta,
     is_error,
     read_journal,
@@ -244,6 +246,29 @@ def run_metadata(scenarios: Sequence[str], controllers: Sequence[str], runs: int
     }
 
 
+@contextlib.contextmanager
+def campaign_executor(ray: Any) -> Iterator[Any]:
+    """:func:`sanav_mj.eval.ray_runner.campaign_executor` when ``ray`` asks for Ray, else
+    None (the process pool) without importing the Ray runner."""
+    if ray is None or ray is False:
+        yield None
+        return
+    from sanav_mj.eval.ray_runner import campaign_executor as on_ray
+
+    with on_ray(ray) as executor:
+        yield executor
+
+
+def describe(ray: Any) -> str | None:
+    """How a campaign ran, for ``meta.json["executor"]``: None (the process pool), ``"ray"``
+    (a local Ray) or ``"ray ADDRESS"``."""
+    if ray is None or ray is False:
+        return None
+    from sanav_mj.eval.ray_runner import describe as on_ray
+
+    return on_ray(ray)
+
+
 def begin_campaign(out: Path, meta: dict[str, Any], resume: bool) -> None:
     """Write ``out/meta.json`` before the runs; with ``resume`` and a journal in ``out``, first
     check that the folder was run with the same :data:`RESUME_SETTINGS`.
@@ -275,6 +300,7 @@ def run_bench(
     record: bool = False,
     time_limit_s: float = 60.0,
     resume: bool = False,
+    ray: str | bool | Any = None,
 ) -> list[dict[str, Any]]:
     """Run the comparison and write ``results.csv``, ``table.md`` and ``success.png`` in ``out``.
 
@@ -289,6 +315,11 @@ def run_bench(
         resume: keep the finished runs of ``out/runs.jsonl`` (an interrupted campaign with
             the same settings) and run only the others; the outputs are the same as those of
             an uninterrupted campaign. Without it the journal starts empty.
+        ray: run on Ray instead of the process pool (see
+            :func:`sanav_mj.eval.ray_runner.campaign_executor`): True for a local Ray, an
+            address (``"auto"``, ``"HOST:PORT"``, ``"ray://HOST:PORT"``) for a cluster, or an
+            open :class:`~sanav_mj.eval.ray_runner.RaySession`; None: the pool of ``workers``.
+            The rows, outputs and journal are the same either way.
 
     Returns:
         The per (scenario, controller) summary rows (also written to ``table.md``); their
@@ -301,6 +332,7 @@ def run_bench(
     Raises:
         sanav_mj.eval.campaign.JournalError: ``resume`` into a folder run with other settings.
         sanav_mj.eval.campaign.CampaignInterrupted: Ctrl-C; finished runs are in the journal.
+        sanav_mj.eval.ray_runner.ClusterError: ``ray`` given but Ray is missing or unreachable.
     """
     from sanav_mj.eval.plots import plot_success_bars
     from sanav_mj.resources import builtin_scenarios
@@ -312,17 +344,20 @@ def run_bench(
     out.mkdir(parents=True, exist_ok=True)
     if record:
         (out / "rrd").mkdir(exist_ok=True)
-    jobs = [
+    jobs = JobSet(lambda: (
         Job(
             scenario=s, controller=c, seed=k, time_limit_s=time_limit_s,
             rrd=str(out / "rrd" / f"{Path(s).stem}_{c}_{k}.rrd") if record else None,
         )
         for s in names for c in controllers for k in range(runs)
-    ]
-    meta = {"command": "bench", **run_metadata(names, controllers, runs, workers, time_limit_s)}
-    begin_campaign(out, meta, resume)
-    t0 = time.perf_counter()
-    rows = [flatten(d) for d in run_jobs(jobs, workers, desc="bench", journal=out / JOURNAL_NAME, resume=resume)]
+    ), len(names) * len(controllers) * runs)
+    with campaign_executor(ray) as executor:
+        meta = {"command": "bench", **run_metadata(names, controllers, runs, workers, time_limit_s)}
+        meta["executor"] = describe(ray)
+        begin_campaign(out, meta, resume)
+        t0 = time.perf_counter()
+        rows = [flatten(d) for d in run_jobs(jobs, workers, desc="bench", journal=out / JOURNAL_NAME, resume=resume,
+                                             executor=executor)]
     meta["wall_time_s"] = time.perf_counter() - t0
     meta["load_average_end"] = _load_average()
     write_csv(rows, out / "results.csv")

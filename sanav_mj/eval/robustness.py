@@ -25,6 +25,7 @@ import csv
 import json
 import math
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -34,11 +35,13 @@ from sanav_mj.eval.bench import (
     CSV_COLUMNS,
     _load_average,
     begin_campaign,
+    campaign_executor,
+    describe,
     flatten,
     run_metadata,
     write_csv,
 )
-from sanav_mj.eval.campaign import JOURNAL_NAME, Job, is_error, run_jobs
+from sanav_mj.eval.campaign import JOURNAL_NAME, Job, JobSet, is_error, run_jobs
 from sanav_mj.outputs import atomic_path, write_text
 from sanav_mj.sim.mismatch import Mismatch, MismatchError, mismatch_keys
 
@@ -185,6 +188,7 @@ def run_robustness(
     time_limit_s: float = 60.0,
     fixed: Mismatch = Mismatch(),
     resume: bool = False,
+    ray: str | bool | Any = None,
 ) -> list[dict[str, Any]]:
     """Run the sweep and write CSVs and heat maps into ``out``.
 
@@ -202,6 +206,9 @@ def run_robustness(
         resume: keep the finished runs of ``out/runs.jsonl`` (an interrupted sweep with the
             same settings) and run only the others; the outputs are the same as those of an
             uninterrupted sweep. Without it the journal starts empty.
+        ray: run on Ray instead of the process pool, as in
+            :func:`sanav_mj.eval.bench.run_bench` (True: a local Ray; an address: a cluster;
+            None: the pool of ``workers``); the rows, outputs and journal are the same.
 
     Returns:
         One summary row per grid point pooled over the scenarios (``scenario`` =
@@ -231,20 +238,26 @@ def run_robustness(
     base_items = tuple(f"{k}={_fmt(k, v)}" for k, v in base.items())
     out.mkdir(parents=True, exist_ok=True)
     (xk, xv), (yk, yv) = sweep[0], (sweep[1] if len(sweep) > 1 else ("", [math.nan]))
-    jobs = []
-    for yi, y in enumerate(yv):
-        for xi, x in enumerate(xv):
-            items = [f"{xk}={_fmt(xk, x)}"] + ([f"{yk}={_fmt(yk, y)}"] if yk else []) + list(base_items)
-            for s in scenarios:
-                for k in range(seeds):
-                    jobs.append(Job(s, controller, k, tuple(items), time_limit_s, None,
-                                    ((xk, x),) + (((yk, y),) if yk else ()) + (("_cell", (yi, xi)),)))
-    meta = {"command": "robustness", **run_metadata(scenarios, [controller], seeds, workers, time_limit_s)}
-    meta["sweep"] = {k: [_value(k, v) for v in vals] for k, vals in sweep}
-    meta["fixed"] = dict(base)
-    begin_campaign(out, meta, resume)
-    t0 = time.perf_counter()
-    docs = run_jobs(jobs, workers, desc="robustness", journal=out / JOURNAL_NAME, resume=resume)
+
+    def make_jobs() -> Iterator[Job]:  # lazily: a campaign's size does not cost memory up front
+        for yi, y in enumerate(yv):
+            for xi, x in enumerate(xv):
+                items = (f"{xk}={_fmt(xk, x)}",) + ((f"{yk}={_fmt(yk, y)}",) if yk else ()) + base_items
+                tags = ((xk, x),) + (((yk, y),) if yk else ()) + (("_cell", (yi, xi)),)
+                for s in scenarios:
+                    for k in range(seeds):
+                        yield Job(s, controller, k, items, time_limit_s, None, tags)
+
+    jobs = JobSet(make_jobs, len(yv) * len(xv) * len(scenarios) * seeds)
+    with campaign_executor(ray) as executor:
+        meta = {"command": "robustness", **run_metadata(scenarios, [controller], seeds, workers, time_limit_s)}
+        meta["sweep"] = {k: [_value(k, v) for v in vals] for k, vals in sweep}
+        meta["fixed"] = dict(base)
+        meta["executor"] = describe(ray)
+        begin_campaign(out, meta, resume)
+        t0 = time.perf_counter()
+        docs = run_jobs(jobs, workers, desc="robustness", journal=out / JOURNAL_NAME, resume=resume,
+                        executor=executor)
     meta["wall_time_s"] = time.perf_counter() - t0
     meta["load_average_end"] = _load_average()
     write_text(out / "meta.json", json.dumps(meta, indent=1))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 
 import pytest
@@ -20,15 +21,25 @@ from sanav_mj.eval.campaign import (
     read_journal,
     run_jobs,
 )
+from sanav_mj.sim.mismatch import parse_mismatch
 
 
 def fake_run(job: Job) -> dict:
     """A run document that is a known function of the job; seed 3 raises (module level: workers import it)."""
     if job.seed == 3:
         raise ValueError(f"bad seed\n{job.seed}")
-    return {"scenario": job.scenario, "controller": job.controller, "seed": job.seed,
-            "success": job.seed % 2 == 0, "reason": "goal" if job.seed % 2 == 0 else "stuck",
+    return {**_metrics(job), "success": job.seed % 2 == 0, "reason": "goal" if job.seed % 2 == 0 else "stuck",
             "steps": 10 + job.seed, "pid": os.getpid(), **dict(job.tags)}
+
+
+def _metrics(job: Job) -> dict:
+    """The fields every run row has (see check_row), with values that are a function of the job."""
+    stats = {"mean": 1.0, "max": 2.0, "std": 0.5, "p50": 1.0, "p99": 2.0}
+    return {"scenario": job.scenario, "controller": job.controller, "seed": job.seed, "success": True,
+            "reason": "goal", "steps": 10, "sim_time_s": 1.0, "path_length_m": 2.0 + job.seed,
+            "min_clearance_m": 0.1, "collisions": 0, "safe_area_violations": 0, "solver_failures": 0,
+            "solve_ms": stats, "pipeline_ms": stats,
+            "mismatch": parse_mismatch(list(job.mismatch)).changed()}
 
 
 def _jobs(n=6, **kw):
@@ -207,3 +218,205 @@ def test_a_worker_that_dies_gives_error_rows_not_a_crash(tmp_path):
     # the pool is gone with it: the runs still pending are error rows too (and --resume runs them again)
     assert all(not is_error(r) or "worker process died" in r["error"] for r in rows)
     assert len(read_journal(tmp_path / "runs.jsonl")) == 4
+
+
+# --------------------------------------------------------------------------- journal rows are checked before any run
+
+def _journal_of(tmp_path, n=4):
+    journal = tmp_path / "runs.jsonl"
+    run_jobs(_jobs(n), workers=1, journal=journal, runner=fake_run)
+    return journal, [json.loads(line) for line in journal.read_text().splitlines()]
+
+
+def _write(journal, entries):
+    journal.write_text("".join(json.dumps(e) + "\n" for e in entries) + '{"key": "cut')  # a cut last line too
+
+
+def _edit(entry, **changes):
+    row = dict(entry["row"])
+    for k, v in changes.items():
+        if v is KeyError:
+            row.pop(k)
+        else:
+            row[k] = v
+    return {"key": entry["key"], "row": row}
+
+
+@pytest.mark.parametrize("changes, fragment", [
+    ({"steps": KeyError}, "row has no 'steps'"),
+    ({"min_clearance_m": KeyError}, "row has no 'min_clearance_m'"),
+    ({"steps": "12"}, "row 'steps': expected a whole number >= 0, got \"12\""),
+    ({"success": 1}, "row 'success': expected true or false, got 1"),
+    ({"solve_ms": {"mean": 1.0}}, "row 'solve_ms': expected an object with numbers mean, max, std, p50, p99"),
+    ({"seed": 7}, "row 'seed': expected 2 as in its key, got 7"),
+    ({"controller": "mpc"}, "row 'controller': expected \"dwa\" as in its key"),
+    ({"mismatch": {"mass": 2.0}}, "row 'mismatch': expected {\"mass\": 1.5} as its key's mismatch gives"),
+    ({"cell": [0, 0]}, "row 'cell': expected [2, 0] as its job has, got [0, 0]"),
+])
+def test_resume_refuses_a_bad_row_naming_its_line_before_any_run(tmp_path, changes, fragment):
+    journal, entries = _journal_of(tmp_path)
+    entries[2] = _edit(entries[2], **changes)
+    _write(journal, entries)
+    calls = []
+    with pytest.raises(JournalError) as err:
+        run_jobs(_jobs(6), workers=1, journal=journal, resume=True, runner=lambda j: calls.append(j) or fake_run(j))
+    assert str(err.value).startswith(f"{journal}:3: ") and fragment in str(err.value)
+    assert "\n" not in str(err.value)
+    assert calls == []  # nothing ran
+    assert journal.read_text().endswith('{"key": "cut')  # and the journal is untouched
+
+
+def test_a_bad_error_row_and_a_bad_key_are_refused(tmp_path):
+    journal, entries = _journal_of(tmp_path)
+    assert entries[3]["row"]["reason"] == "error"
+    _write(journal, entries[:3] + [_edit(entries[3], error=None)])
+    with pytest.raises(JournalError, match=r"runs.jsonl:4: row 'error': expected a string"):
+        read_journal(journal)
+    _write(journal, [{"key": '["single_rect","dwa","0",["mass=1.5"],12.5]', "row": entries[0]["row"]}])
+    with pytest.raises(JournalError, match=r"runs.jsonl:1: key .* expected \[str, str, int"):
+        read_journal(journal)
+
+
+def test_nan_is_written_as_strict_json_and_read_back(tmp_path):
+    def nan_run(job):
+        row = fake_run(job)
+        row.update(min_clearance_m=float("nan"), path_length_m=float("inf"))
+        row["solve_ms"] = dict(row["solve_ms"], std=float("-inf"))
+        return row
+
+    journal = tmp_path / "runs.jsonl"
+    jobs = [j for j in _jobs(3) if j.seed != 3]
+    rows = run_jobs(jobs, workers=1, journal=journal, runner=nan_run)
+    for line in journal.read_text().splitlines():  # strict JSON: no NaN / Infinity tokens
+        json.loads(line, parse_constant=lambda name: pytest.fail(f"{name} in the journal"))
+    assert '{"$float": "nan"}' in journal.read_text()
+    back = read_journal(journal)[job_key(jobs[0])]
+    assert math.isnan(back["min_clearance_m"]) and back["path_length_m"] == math.inf
+    assert back["solve_ms"]["std"] == -math.inf
+    assert math.isnan(rows[0]["min_clearance_m"])
+    resumed = run_jobs(jobs, workers=1, journal=journal, resume=True, runner=None)  # nothing left to run
+    assert resumed[1]["path_length_m"] == math.inf
+    # a journal written before, with bare NaN tokens, still resumes, and is rewritten strictly
+    journal.write_text(journal.read_text().replace('{"$float": "nan"}', "NaN"))
+    assert "NaN" in journal.read_text()
+    assert math.isnan(run_jobs(jobs, workers=1, journal=journal, resume=True, runner=None)[0]["min_clearance_m"])
+    assert "NaN" not in journal.read_text() and '{"$float": "nan"}' in journal.read_text()
+
+
+def test_resume_cli_exit_2_one_line_naming_the_line(tmp_path, monkeypatch, capsys):
+    from sanav_mj.cli import main
+
+    stats = {"mean": 1.0, "max": 2.0, "std": 0.5, "p50": 1.0, "p99": 2.0}
+    monkeypatch.setattr(campaign, "run_job", lambda job: {**_metrics(job), "solve_ms": stats})
+    out = tmp_path / "b"
+    assert main(["bench", "single_rect", "--controllers", "dwa", "--runs", "3", "--workers", "1",
+                 "--out", str(out)]) == 0
+    journal = out / "runs.jsonl"
+    entries = [json.loads(line) for line in journal.read_text().splitlines()]
+    entries[1]["row"]["collisions"] = -1
+    _write(journal, entries)
+    capsys.readouterr()
+    assert main(["bench", "single_rect", "--controllers", "dwa", "--runs", "3", "--workers", "1",
+                 "--out", str(out), "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"sanav-mj: error: {journal}:2: row 'collisions': expected a whole number >= 0, got -1\n"
+
+
+# --------------------------------------------------------------------------- lazy jobs, bounded in flight
+
+def _endless(counter):
+    """A campaign far too big to list: 10^12 jobs generated on demand; counts those taken."""
+    def make():
+        k = 0
+        while True:
+            counter.append(k)
+            yield Job("single_rect", "dwa", k, (), 12.5)
+            k += 1
+    return campaign.JobSet(make, 10**12)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_huge_lazy_campaign_is_taken_only_as_far_as_it_runs(tmp_path, workers):
+    taken: list[int] = []
+    finished: list[int] = []
+
+    class Bar:  # Ctrl-C after the fifth finished row
+        def __init__(self, *a, total=None, **kw):
+            assert total == 10**12
+
+        def update(self, k=1):
+            finished.append(k)
+            if len(finished) == 5:
+                raise KeyboardInterrupt
+
+        def close(self):
+            pass
+
+    import unittest.mock
+
+    with unittest.mock.patch.object(campaign, "tqdm", Bar), pytest.raises(CampaignInterrupted) as info:
+        run_jobs(_endless(taken), workers=workers, journal=tmp_path / "runs.jsonl", runner=fake_plain)
+    assert (info.value.saved, info.value.total) == (5, 10**12)
+    # in this process one job at a time; with the pool at most 2 x workers in flight beyond the finished
+    assert len(taken) <= 5 + (0 if workers == 1 else 2 * workers)
+
+
+def fake_plain(job: Job) -> dict:
+    """A valid run row, no exception (module level: workers import it)."""
+    return _metrics(job)
+
+
+# --------------------------------------------------------------------------- workers die with their parent
+
+_KILL_SCRIPT = r"""
+import os, sys, time
+from pathlib import Path
+from sanav_mj.eval.campaign import Job, run_jobs
+
+def slow(job):
+    Path(sys.argv[1], f"{os.getpid()}").write_text("")
+    time.sleep(120)
+    return {}
+
+if __name__ == "__main__":
+    run_jobs([Job("single_rect", "dwa", k) for k in range(8)], workers=2, runner=slow)
+"""
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie waiting for its reaper does not run)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads /proc to see the worker processes")
+def test_workers_exit_when_the_parent_is_killed_with_sigkill(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / "campaign.py"
+    script.write_text(_KILL_SCRIPT)
+    pids = tmp_path / "pids"
+    pids.mkdir()
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [os.getcwd(), os.environ.get("PYTHONPATH")])))
+    parent = subprocess.Popen([sys.executable, str(script), str(pids)], env=env, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while len(list(pids.iterdir())) < 2 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        workers = [int(p.name) for p in pids.iterdir()]
+        assert len(workers) == 2 and all(_alive(p) for p in workers)
+        parent.send_signal(signal.SIGKILL)
+        parent.wait()
+        deadline = time.monotonic() + 5
+        while any(_alive(p) for p in workers) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not [p for p in workers if _alive(p)]
+    finally:
+        parent.kill()
+        parent.wait()

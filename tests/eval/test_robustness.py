@@ -103,8 +103,8 @@ def _fake_doc(job):
         "scenario": job.scenario, "controller": job.controller, "seed": job.seed, "success": success,
         "reason": reason, "steps": 10, "sim_time_s": 1.0, "path_length_m": 1.0,
         "min_clearance_m": -0.01 if collided else 0.1 * x + 0.01 * job.seed, "collisions": int(collided),
-        "safe_area_violations": 0, "solve_ms": stats, "pipeline_ms": stats,
-        "mismatch": dict(item.split("=") for item in job.mismatch),
+        "safe_area_violations": 0, "solver_failures": 0, "solve_ms": stats, "pipeline_ms": stats,
+        "mismatch": parse_mismatch(list(job.mismatch)).changed(),
         **tags,
     }
 
@@ -138,8 +138,8 @@ def test_two_key_aggregation_known_answers(tmp_path, monkeypatch):
     runs = _read(out / "robustness.csv")
     assert len(runs) == 12
     # the folder says what it ran under: each run's whole mismatch, and meta.json
-    assert {r["mismatch"] for r in runs} == {f"mass={m} delay={d} friction=0.5"
-                                              for m in ("1.0", "2.0") for d in ("0", "1")}
+    assert {r["mismatch"] for r in runs} == {"friction=0.5", "mass=2.0 friction=0.5", "friction=0.5 delay=1",
+                                              "mass=2.0 friction=0.5 delay=1"}  # the keys a run changes
     meta = json.loads((out / "meta.json").read_text())
     assert meta["fixed"] == {"friction": 0.5}
     assert meta["sweep"] == {"mass": [1.0, 2.0], "delay": [0.0, 1.0]}
