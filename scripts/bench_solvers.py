@@ -39,12 +39,8 @@ from pathlib import Path
 import numpy as np
 
 from sanav_mj.control.base import Observation
-from sanav_mj.control.ocp import (
-    make_backend,
-    shift_bound_multipliers,
-    shift_inputs,
-    shift_multipliers,
-)
+from sanav_mj.control.backends import make_backend
+from sanav_mj.control.problem import shift_bound_multipliers, shift_inputs, shift_multipliers
 from sanav_mj.control.sa_mpc import SAMPC, MPCConfig
 from sanav_mj.control.unicycle import step_np
 from sanav_mj.mapping.safe_areas import SafeAreas

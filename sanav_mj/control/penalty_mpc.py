@@ -1,7 +1,7 @@
 """The paper's MPC baseline: obstacles as convex polygons in the cost, reference straight to the goal.
 
 Same model, horizon, weights, bounds and solver as SA-MPC (:class:`~sanav_mj.control.sa_mpc.MPCConfig`
-and the shared NLP of :mod:`sanav_mj.control.ocp`), but no safe areas and no position
+and the shared NLP of :mod:`sanav_mj.control.problem`), but no safe areas and no position
 constraints: collision avoidance is the cost term :class:`ObstaclePenalty` over the inflated
 obstacle polygons, and the reference is the straight line from the robot to the goal. This
 is the formulation the paper compares against (obstacles "incorporated into the MPC
@@ -46,13 +46,9 @@ import casadi as cs
 import numpy as np
 
 from sanav_mj.control.base import Command, Observation
-from sanav_mj.control.ocp import (
-    build_tracking_ocp,
-    shift_bound_multipliers,
-    shift_inputs,
-    shift_multipliers,
-)
-from sanav_mj.control.sa_mpc import MPCConfig, get_backend
+from sanav_mj.control.backends import get_backend
+from sanav_mj.control.problem import build_tracking_ocp, shift_bound_multipliers, shift_inputs, shift_multipliers
+from sanav_mj.control.sa_mpc import MPCConfig
 from sanav_mj.control.unicycle import rollout_np
 from sanav_mj.scene import Obstacle, RobotParams
 
@@ -101,7 +97,7 @@ def obstacle_polygon(obstacle: Obstacle, inflation: float, circle_sides: int = 8
 
 @dataclass(frozen=True)
 class ObstaclePenalty:
-    """Cost of entering convex polygons, a :class:`~sanav_mj.control.ocp.PositionCost`.
+    """Cost of entering convex polygons, a :class:`~sanav_mj.control.problem.PositionCost`.
 
     ``h_ji = b_ji - a_ji^T p`` is the signed distance [m] of ``p`` inside edge line i of
     polygon j (unit normals; positive inside). Two forms, both zero outside every polygon

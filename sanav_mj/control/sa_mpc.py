@@ -1,6 +1,6 @@
 """Safe-area MPC (SA-MPC, paper Sec. III-D/E): track the reference inside the safe rectangles.
 
-The optimisation problem is the shared tracking NLP of :mod:`sanav_mj.control.ocp` with
+The optimisation problem is the shared tracking NLP of :mod:`sanav_mj.control.problem` with
 
 - hard stage boxes ``A_k p_k <= b_k`` (k = 1..N) built from the safe areas of the corridor
   (see "Stage boxes" in :class:`SAMPC`), passed as bounds of the position rows of ``g``;
@@ -23,17 +23,9 @@ import numpy as np
 
 from sanav_mj.control.base import Command, Observation
 from sanav_mj.control.monitor import ActuationMonitor, MonitorConfig, PoseFilter, PoseFilterConfig
-from sanav_mj.control.ocp import (
-    BACKENDS,
-    Backend,
-    SolverSettings,
-    TrackingOCP,
-    build_tracking_ocp,
-    make_backend,
-    shift_bound_multipliers,
-    shift_inputs,
-    shift_multipliers,
-)
+from sanav_mj.control.backends import BACKENDS, get_backend
+from sanav_mj.control.problem import build_tracking_ocp, shift_bound_multipliers, shift_inputs, shift_multipliers
+from sanav_mj.control.solver import SolverSettings
 from sanav_mj.control.unicycle import SINC_HALF_ANGLE_MAX, rollout_np
 from sanav_mj.mapping.safe_areas import SafeAreas
 from sanav_mj.planning.reference import Plan, Reference
@@ -87,7 +79,7 @@ class MPCConfig:
             sibling from the same authors), ``"panoc"`` (alpaqa ALM + PANOC with L-BFGS,
             compiled: the paper's solver), ``"pantr"`` (alpaqa ALM + PANTR, PANOC's
             trust-region Newton variant, compiled) or ``"ipopt"`` (through CasADi, the
-            reference), see :mod:`sanav_mj.control.ocp`. ZeroFPR is the default because it
+            reference), see :mod:`sanav_mj.control.problem`. ZeroFPR is the default because it
             was measured fastest with the same success and tracking: in MuJoCo (five
             scenarios x 10 seeds, CPU) step mean 0.91 ms against 1.03 (PANOC) and 1.10
             (PANTR), 99th percentile 3.8-4.0 ms against 4.5 and 3.5-3.7; on the recorded
@@ -339,7 +331,7 @@ class InputLimits:
 
 @dataclass(frozen=True)
 class SafeAreaPenalty:
-    """The paper's soft safe-area penalty as a :class:`~sanav_mj.control.ocp.PositionCost`.
+    """The paper's soft safe-area penalty as a :class:`~sanav_mj.control.problem.PositionCost`.
 
     ``J_SA(p) = prod_n (a_n sum_m [q_n h_nm(p)]_-^2 + (1 - a_n))`` over ``n_slots`` rectangle
     slots, with ``h_n = (px - xmin, py - ymin, xmax - px, ymax - py)`` [m], ``[h]_- = min(0, h)``,
@@ -612,26 +604,6 @@ def box_slack(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     return np.min(np.concatenate((points - boxes[:, :2], boxes[:, 2:] - points), axis=1), axis=1)
 
 
-# --------------------------------------------------------------------------------------
-# Process-wide cache of built back-ends (the problem structure is the key).
-
-_BACKENDS: dict[tuple, Backend] = {}
-
-
-def get_backend(ocp: TrackingOCP, solver: str, settings: SolverSettings, cache_dir: Path | None) -> Backend:
-    """Return the back-end for this problem structure and settings, building it on first use.
-
-    Back-ends hold no episode state (every solve sets all parameters and bounds), so the
-    controllers of one process share them; they are not safe for concurrent threads.
-    """
-    key = (ocp.key, solver, settings, str(cache_dir))
-    be = _BACKENDS.get(key)
-    if be is None:
-        be = make_backend(solver, ocp, settings, cache_dir)
-        _BACKENDS[key] = be
-    return be
-
-
 def _resample(ref: Reference, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Reference states (K', 3), inputs (K', 2) and areas (K',) resampled to period ``dt`` [s].
 
@@ -709,7 +681,7 @@ class SAMPC:
     pose with the measured velocity, predict the state
     at which the new command takes effect (latency compensation), find the progress along
     the reference, build the stage boxes, bound the speed by the excursion and the
-    tracking residual, solve the NLP (:mod:`sanav_mj.control.ocp`) warm-started from the
+    tracking residual, solve the NLP (:mod:`sanav_mj.control.problem`) warm-started from the
     shifted previous plan, check the result, apply the first input (or a fallback).
 
     **Stage boxes.** The corridor ``c_0..c_{C-1}`` gives the chain ``R_0, B_01, R_1, ...``
