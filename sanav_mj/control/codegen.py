@@ -9,6 +9,7 @@ a second process only loads it. Without a C compiler :func:`find_compiler` raise
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
 import shutil
 import subprocess
@@ -29,11 +30,32 @@ def default_cache_dir() -> Path:
     return Path.home() / ".cache" / "sanav-mj"
 
 
-def _compiler() -> str:
-    for name in (os.environ.get("CC"), "cc", "gcc", "clang"):
-        if name and shutil.which(name):
+#: name of the logger that reports compilation (one WARNING-level line per cache folder and
+#: process, before the first compile): with no logging configured Python prints it on stderr.
+LOGGER = "sanav_mj.control"
+
+_announced: set[str] = set()
+
+
+class NoCompilerError(RuntimeError):
+    """No C compiler to compile generated code (one line: what was looked for)."""
+
+
+def find_compiler() -> str:
+    """The C compiler to use: ``$CC`` when set (and only it), else the first of cc, gcc, clang.
+
+    Raises:
+        NoCompilerError: ``$CC`` names no executable, or none of the defaults is installed.
+    """
+    cc = os.environ.get("CC")
+    if cc:
+        if shutil.which(cc):
+            return cc
+        raise NoCompilerError(f"no C compiler: CC={cc!r} is not an executable")
+    for name in ("cc", "gcc", "clang"):
+        if shutil.which(name):
             return name
-    raise RuntimeError("no C compiler found (set CC or install gcc) to compile the PANOC problem")
+    raise NoCompilerError("no C compiler found (cc, gcc, clang; set CC or install gcc)")
 
 
 # -O3 for this CPU: 15-20 % faster code than -O1 on the SA-MPC problem (replay of the
@@ -132,7 +154,11 @@ def cached_shared_library(
     Returns:
         (path of the shared library, True when it was compiled by this call).
 
+    On a miss the first compile into a folder is announced once per process on the
+    :data:`LOGGER` logger (level WARNING): it takes about 10 s for the SA-MPC problem.
+
     Raises:
+        NoCompilerError: a miss and no C compiler (see :func:`find_compiler`).
         RuntimeError: the compiler failed (its first 2000 characters of stderr).
     """
     h = hashlib.sha256()
@@ -142,11 +168,16 @@ def cached_shared_library(
     target = root / f"{prefix}_{h.hexdigest()[:20]}.so"
     if target.is_file():
         return target, False
+    compiler = find_compiler()
+    if str(root) not in _announced:
+        _announced.add(str(root))
+        logging.getLogger(LOGGER).warning(
+            "compiling the solver code once (about 10 s, then cached in %s)", root)
     root.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=root, prefix="build_") as tmp:
         src = generate(Path(tmp))
         out = Path(tmp) / "lib.so"
-        proc = subprocess.run([_compiler(), *_CFLAGS, src, "-o", str(out), "-lm"], capture_output=True, text=True, check=False)
+        proc = subprocess.run([compiler, *_CFLAGS, src, "-o", str(out), "-lm"], capture_output=True, text=True, check=False)
         if proc.returncode != 0:
             raise RuntimeError(f"compiling {what} failed: {proc.stderr.strip()[:2000]}")
         os.replace(out, target)

@@ -166,15 +166,13 @@ def test_planner_config_of_the_mujoco_robot():
         assert getattr(cfg, name) == getattr(base, name), name
 
 
-def test_planner_config_fractions_are_capped_at_one(monkeypatch):
-    from functools import partial
-
-    from sanav_mj.control import sa_mpc
+def test_planner_config_fractions_are_capped_at_one():
+    from sanav_mj.control.config import MPCConfig
+    from sanav_mj.control.spec import ControllerSpec
     from sanav_mj.eval.episode import planner_config
 
     # an MPC allowed 10 m/s^2 on a 1 m/s^2 robot: 0.8 * 10 / 1 = 8 -> the robot's whole a_max
-    monkeypatch.setattr(sa_mpc, "MPCConfig", partial(sa_mpc.MPCConfig, a_max=10.0, dt=0.05))
-    cfg = planner_config(_robot())
+    cfg = planner_config(_robot(), ControllerSpec(sa_mpc=MPCConfig(a_max=10.0, dt=0.05)))
     assert cfg.accel_fraction == 1.0
     assert cfg.dt == 0.05
 
