@@ -12,8 +12,10 @@ The run set (issue 13):
 - ``sa-mpc`` under the mismatch corner ``wheel_radius=1.1 track=0.9 friction=0.3 delay=1
   pos_noise=0.02 yaw_noise=0.035`` on u_shape, v_shape, complex x seeds 0-1 (6 runs).
 
-``--set penalty10`` instead runs ``mpc`` on the five scenarios x seeds 0-9 (the before/after
-measure of the penalty MPC's fallback change).
+``--set penalty10`` instead runs ``mpc`` on the five scenarios x seeds 0-9, ``--set
+penalty_corner`` ``mpc`` under the mismatch corner on the five scenarios x seeds 0-4 (the
+before/after measures of the penalty MPC's fallback change); ``--set quick`` ``sa-mpc`` on the
+five scenarios seed 0 and one corner run (a check between steps).
 
 Wall-clock fields excluded from the comparison (:data:`WALL_CLOCK_FIELDS`): ``solve_ms`` and
 ``pipeline_ms`` (per-step wall times and their statistics), and any top-level key ending in
@@ -58,11 +60,13 @@ def run_set(name: str) -> list[tuple[str, str, int, tuple[str, ...]]]:
         runs += [("sa-mpc", s, k, CORNER) for s in CORNER_SCENARIOS for k in range(2)]
     elif name == "penalty10":
         runs += [("mpc", s, k, ()) for s in SCENARIOS for k in range(10)]
+    elif name == "penalty_corner":
+        runs += [("mpc", s, k, CORNER) for s in SCENARIOS for k in range(5)]
     elif name == "quick":
         runs += [("sa-mpc", s, 0, ()) for s in SCENARIOS]
         runs += [("sa-mpc", "u_shape", 0, CORNER)]
     else:
-        raise SystemExit(f"--set: expected default, penalty10 or quick, got {name!r}")
+        raise SystemExit(f"--set: expected default, penalty10, penalty_corner or quick, got {name!r}")
     return runs
 
 
@@ -136,7 +140,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("mode", choices=("record", "compare"))
     p.add_argument("dir", nargs="?", type=Path, help="folder of full documents (record: written; compare: read)")
     p.add_argument("--digests", type=Path, help="digest file (record: written; compare: read instead of DIR)")
-    p.add_argument("--set", default="default", help="run set: default (61 runs), penalty10 (50), quick (6)")
+    p.add_argument("--set", default="default",
+                   help="run set: default (61 runs), penalty10 (50), penalty_corner (25), quick (6)")
     p.add_argument("--only", nargs="*", help="only these run tags (e.g. sa-mpc:u_shape:0, sa-mpc:v_shape:1:corner)")
     p.add_argument("--out", type=Path, help="compare: also store the new documents here")
     p.add_argument("--workers", type=int, default=2, help="worker processes (at most 2; default 2)")

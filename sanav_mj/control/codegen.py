@@ -15,8 +15,10 @@ import shutil
 import subprocess
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import casadi as cs
+if TYPE_CHECKING:  # pragma: no cover
+    import casadi as cs
 
 #: Environment variable overriding the on-disk cache of compiled problems.
 CACHE_ENV = "SANAV_MJ_CACHE"
@@ -122,6 +124,7 @@ def compile_alpaqa_problem(
         (path of the shared library, True when it was compiled by this call).
     """
     import alpaqa
+    import casadi as cs
 
     key = (f.serialize(), g.serialize(), second_order, cs.__version__, alpaqa.__version__, "cse")
     return cached_shared_library(
@@ -200,6 +203,8 @@ def _generate_cse(f: cs.Function, g: cs.Function, second_order: str) -> cs.CodeG
         from alpaqa.casadi_generator import generate_casadi_problem
 
         return generate_casadi_problem(f, g, second_order=second_order, name="sanav_problem")
+
+    import casadi as cs
 
     cg = cs.CodeGenerator("sanav_problem.c")
     for name, fn in _prepare_casadi_problem(f, g, second_order, cs.SX.sym).items():

@@ -174,7 +174,7 @@ class SAMPC(TrackingMPC):
     torque limit) or a delay beyond what the monitor identifies make the measured body
     velocity differ from the identified response to the sent commands. The monitor's RMS
     residual over its forgetting window lowers the speed bound like an excursion does
-    (``MPCConfig.residual_stop``): a plant that does not do what it is told is driven
+    (``AdaptationConfig.residual_stop``): a plant that does not do what it is told is driven
     slowly, down to ``residual_floor v_max``, so that its braking distance and the error
     it accumulates per period shrink with the speed.
 

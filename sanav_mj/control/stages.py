@@ -189,7 +189,7 @@ def assign_stages(
     d2 = _outside_sq(guess, np.concatenate((chain.stay, chain.advance)))
     d2[d2 < tol * tol] = 0.0
     if L <= 62:
-        s = _assign_feasible(d2, L, first_candidates, reanchor_distance)
+        s = assign_feasible(d2, L, first_candidates, reanchor_distance)
         if s is not None:
             return s
     v = np.sqrt(d2)
@@ -231,8 +231,11 @@ def assign_stages(
     return s
 
 
-def _assign_feasible(v: np.ndarray, L: int, first_candidates, reanchor_distance: float) -> np.ndarray | None:
-    """The assignment of :func:`assign_stages` when one with zero violation exists, else None.
+def assign_feasible(v: np.ndarray, L: int, first_candidates, reanchor_distance: float) -> np.ndarray | None:
+    """The assignment of :func:`assign_stages` when one with zero violation exists, else None
+    (its fast path; ``v`` (N+1, 2L) [m^2] squared distance of each stage's position outside
+    the stay boxes (first L columns) and advance boxes (last L) of the ``L`` chain members,
+    zero below the tolerance; the other arguments as in :func:`assign_stages`).
 
     Among zero-violation assignments the one advancing as early as possible is pointwise
     the largest (if another one advanced at a stage where it did not, it could have too),

@@ -157,7 +157,7 @@ def initial_pose(scenario: Scenario, seed: int, yaw: float | None) -> np.ndarray
 
 
 def run_scenario(
-    scenario_spec: str | Path | Scenario | Prepared,
+    spec: str | Path | Scenario | Prepared,
     controller: str = "sa-mpc",
     seed: int = 0,
     yaw: float | None = None,
@@ -167,12 +167,12 @@ def run_scenario(
     rrd: Path | None = None,
     run_config: RunConfig | None = None,
     controller_obj: Controller | None = None,
-    spec: ControllerSpec | None = None,
+    controller_spec: ControllerSpec | None = None,
 ) -> RunOutcome:
     """Run one closed-loop episode of ``controller`` on a scenario and measure it.
 
     Args:
-        scenario_spec: scenario path / name / :class:`Scenario`, or a :class:`Prepared` to reuse.
+        spec: scenario path / name / :class:`Scenario`, or a :class:`Prepared` to reuse.
         controller: ``"sa-mpc"``, ``"mpc"``, ``"dwa"`` or ``"dqn"``.
         seed: seeds the initial yaw (when ``yaw`` is None), noise and jitter.
         yaw: [rad] explicit initial yaw.
@@ -183,11 +183,12 @@ def run_scenario(
         run_config: episode settings (``time_limit_s`` overrides its time limit).
         controller_obj: use this controller instance instead of building one by name
             (tests inject failing solvers this way).
-        spec: the controller and its settings (default: ``ControllerSpec(controller)``);
-            its name must equal ``controller`` when both are given.
+        controller_spec: the controller and its settings (default:
+            ``ControllerSpec(controller)``); its name must equal ``controller`` when both are
+            given (``controller`` may then be left at its default).
 
     Raises:
-        ValueError: unknown controller name, or ``spec.name`` differs from ``controller``.
+        ValueError: unknown controller name, or ``controller_spec.name`` differs from ``controller``.
     """
     from dataclasses import replace
 
@@ -197,12 +198,14 @@ def run_scenario(
     from sanav_mj.sim.plant import Plant
     from sanav_mj.sim.runner import run_episode
 
-    if spec is None:
-        spec = ControllerSpec(controller)
-    elif spec.name != controller and controller != "sa-mpc":
-        raise ValueError(f"spec: names controller {spec.name!r} but controller={controller!r}")
-    controller = spec.name
-    source = scenario_spec
+    source = spec
+    if controller_spec is None:
+        cspec = ControllerSpec(controller)
+    elif controller_spec.name != controller and controller != "sa-mpc":
+        raise ValueError(f"controller_spec: names controller {controller_spec.name!r} but controller={controller!r}")
+    else:
+        cspec = controller_spec
+    controller = cspec.name
     if isinstance(source, Prepared):
         prep0 = source
         scenario = source.scenario
@@ -213,7 +216,7 @@ def run_scenario(
     t0 = time.perf_counter()
     # The plan starts from the actual start pose; the map does not depend on it.
     prep = prepare(scenario, resolution=prep0.grid.resolution if prep0 else resolution, start=start,
-                   controller=spec) if prep0 is None else _replan(prep0, start, spec)
+                   controller=cspec) if prep0 is None else _replan(prep0, start, cspec)
     setup_ms = (time.perf_counter() - t0) * 1e3 if prep0 is None else prep.timing_ms.get("plan", 0.0)
     model = mismatched_model(scenario, mismatch) if mismatch.physical else None
     plant = Plant(scenario, model=model)
@@ -229,7 +232,7 @@ def run_scenario(
         episode = _no_path_episode(plant, start)
     else:
         ctrl = controller_obj if controller_obj is not None else make_controller(
-            spec, prep.scenario, prep.grid, prep.areas, prep.plan, solve_budget_ms=mismatch.solve_budget_ms
+            cspec, prep.scenario, prep.grid, prep.areas, prep.plan, solve_budget_ms=mismatch.solve_budget_ms
         )
         episode = run_episode(plant, ctrl, start, scenario.goal, cfg, mismatch, rng,
                               on_step=recorder.log_step if recorder else None)
@@ -246,7 +249,7 @@ def run_scenario(
     )
     if recorder is not None:
         recorder.finish(episode, doc)
-    return RunOutcome(prep, controller, start, episode, doc, spec)
+    return RunOutcome(prep, controller, start, episode, doc, cspec)
 
 
 def _replan(prep: Prepared, start: np.ndarray, spec: ControllerSpec) -> Prepared:

@@ -150,11 +150,11 @@ def test_fast_assignment_equals_the_dynamic_programme(u_case, monkeypatch):
             first[max(0, a - 2) : a + 3] = True
         cases.append((guess, first))
     hits = []
-    real = sa._assign_feasible
-    monkeypatch.setattr(sa, "_assign_feasible", lambda *a: hits.append(real(*a)) or hits[-1])
+    real = sa.assign_feasible
+    monkeypatch.setattr(sa, "assign_feasible", lambda *a: hits.append(real(*a)) or hits[-1])
     fast = [assign_stages(chain, g, f, tol=1e-3) for g, f in cases]
     assert sum(h is not None for h in hits) > 150  # the fast path answered most of them
-    monkeypatch.setattr(sa, "_assign_feasible", lambda *a: None)  # always the dynamic programme
+    monkeypatch.setattr(sa, "assign_feasible", lambda *a: None)  # always the dynamic programme
     slow = [assign_stages(chain, g, f, tol=1e-3) for g, f in cases]
     for a, b in zip(fast, slow):
         np.testing.assert_array_equal(a, b)

@@ -75,6 +75,20 @@ def test_every_control_module_imports_and_the_import_graph_has_no_cycle():
     assert find_cycle(graph) is None, f"import cycle: {' -> '.join(find_cycle(graph))}"
 
 
+def test_the_whole_package_has_no_import_cycle():
+    import sanav_mj
+
+    root = Path(sanav_mj.__file__).parent
+    mods = {}
+    for path in root.rglob("*.py"):
+        parts = path.relative_to(root.parent).with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        mods[name] = path
+    graph = {name: _imports(path, set(mods)) - {name} for name, path in mods.items()}
+    cycle = find_cycle(graph)
+    assert cycle is None, f"import cycle: {' -> '.join(cycle)}"
+
+
 def test_no_module_over_800_lines_and_no_class_over_400():
     too_long = []
     for name, path in _modules().items():

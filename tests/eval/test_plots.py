@@ -312,3 +312,18 @@ def test_plot_run_draws_what_each_controller_tracked(prep, tmp_path, monkeypatch
         np.testing.assert_allclose(line.get_xydata(), path)
     if controller in ("dwa", "dqn"):
         assert blue == [] and not any("reference (" in t for t in legend)
+
+
+def test_run_reference_of_the_penalty_mpc_uses_the_runs_spec(prep):
+    """The segment follows the settings the run had (its ControllerSpec), not the defaults."""
+    from dataclasses import replace as dc_replace
+
+    from sanav_mj.control.config import PenaltyConfig
+    from sanav_mj.control.spec import ControllerSpec
+
+    spec = ControllerSpec("mpc", penalty=PenaltyConfig(lookahead=1.0, reference_speed=0.5))
+    out = dc_replace(_as(outcome_of(prep, make_trace()), "mpc"), spec=spec)
+    ref = run_reference(out, [0])
+    assert "from 1 m ahead" in ref.label
+    s = np.minimum(1.0 + 0.5 * 0.1 * np.arange(21), 4.0)  # measured (0, 0), goal (4, 0)
+    np.testing.assert_allclose(ref.paths[0], np.column_stack((s, np.zeros(21))), atol=1e-12)
