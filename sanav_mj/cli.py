@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 from typing import NoReturn
 
-CONTROLLERS = ("sa-mpc", "mpc", "dwa", "dqn")
+from sanav_mj.control.spec import CONTROLLER_NAMES as CONTROLLERS
 
 
 class BadInput(Exception):

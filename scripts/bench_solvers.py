@@ -36,15 +36,13 @@ import tempfile
 import time
 from pathlib import Path
 
+import dataclasses
+
 import numpy as np
 
 from sanav_mj.control.base import Observation
-from sanav_mj.control.ocp import (
-    make_backend,
-    shift_bound_multipliers,
-    shift_inputs,
-    shift_multipliers,
-)
+from sanav_mj.control.backends import make_backend
+from sanav_mj.control.problem import shift_bound_multipliers, shift_inputs, shift_multipliers
 from sanav_mj.control.sa_mpc import SAMPC, MPCConfig
 from sanav_mj.control.unicycle import step_np
 from sanav_mj.mapping.safe_areas import SafeAreas
@@ -359,14 +357,14 @@ def main(argv: list[str] | None = None) -> int:
         "horizon": args.horizon, "problems": len(problems), "replay": {}, "closed_loop": {}, "build": {}, "mujoco": {},
         "load_avg_start": os.getloadavg(),
     }  # fmt: skip
-    backends = {s: make_backend(s, ocp, base.replace(solver=s).solver_settings()) for s in args.solvers}
+    backends = {s: make_backend(s, ocp, dataclasses.replace(base, solver=s).solver_settings()) for s in args.solvers}
     replay(backends, ocp, problems[:20], rate_step)  # warm-up (page-in, first calls)
     results["replay"] = replay(backends, ocp, problems, rate_step)
     for solver in args.solvers:
         results["closed_loop"][solver] = {}
     for name, (areas, plan, yaw) in cases.items():
         for solver in args.solvers:
-            ctl = SAMPC(ROBOT, areas, plan, base.replace(solver=solver))
+            ctl = SAMPC(ROBOT, areas, plan, dataclasses.replace(base, solver=solver))
             results["closed_loop"][solver][name] = closed_loop(ctl, plan, yaw)
     for solver in args.solvers:
         if not args.no_build:

@@ -17,7 +17,7 @@ from rerun.chunk import RrdReader
 from sanav_mj.eval.episode import Prepared
 from sanav_mj.mapping.occupancy import OccupancyGrid
 from sanav_mj.mapping.quadtree import QuadtreeLeaves
-from sanav_mj.mapping.safe_areas import SafeAreas
+from sanav_mj.mapping.safe_areas import SafeAreaMap, SafeAreas
 from sanav_mj.planning.reference import Plan, Reference
 from sanav_mj.record import RecordConfig, Recorder, leaf_rects, robot_footprint
 from sanav_mj.resources import robot_model_path
@@ -51,7 +51,7 @@ def make_prep() -> Prepared:
     states = np.column_stack((4.0 * s, -0.8 * np.sin(np.pi * s), np.zeros(21)))
     ref = Reference(0.1, states, np.zeros((21, 2)), np.zeros(21, dtype=int))
     plan = Plan(True, "ok", np.array([1, 0, 2]), np.array([4.0, 0.0]), wp, wp, states[:, :2], ref)
-    return Prepared(sc, grid, leaves, areas, plan, {"total": 1.0})
+    return Prepared(sc, SafeAreaMap(grid, leaves, np.zeros((0, 4), np.int64), areas, 1, "paper"), plan, {"total": 1.0})
 
 
 def make_trace(n: int = N_STEPS, horizon: int = HORIZON) -> EpisodeTrace:

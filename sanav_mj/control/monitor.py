@@ -50,8 +50,6 @@ class MonitorConfig:
         gain_min, gain_max: clamp of the identified gains (dimensionless; 0.5-2 covers the
             +-20 % geometry corners, whose yaw gain is up to 1.5; at friction 0.05 the
             identified yaw gain reaches the lower clamp).
-        half_track: [m] converts yaw rates into rim speeds so that the v and w residuals
-            are commensurable.
         slip_gap: [m/s] traction evidence: a period after which the measured speed is
             further than this from the command applied over it *at every candidate delay*
             ``0..max_delay`` (gain 1), on the same side, counts as a traction-limited
@@ -74,7 +72,6 @@ class MonitorConfig:
     min_excitation: float = 0.5
     gain_min: float = 0.5
     gain_max: float = 2.0
-    half_track: float = 0.19
     slip_gap: float | None = 0.2
     slip_periods: int = 2
     peak_yaw_rate: float = 0.5
@@ -97,7 +94,7 @@ class MonitorConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0 < v <= 1 and not (name == "forgetting" and v == 1)):
                 raise ValueError(f"MonitorConfig.{name} must be in (0, 1), got {v!r}")
-        for name in ("min_excitation", "half_track", "peak_yaw_rate"):
+        for name in ("min_excitation", "peak_yaw_rate"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"MonitorConfig.{name} must be a positive finite number, got {v!r}")
@@ -117,6 +114,8 @@ class ActuationMonitor:
 
     Attributes:
         config: the settings.
+        half_track: [m] half the robot's track (``RobotParams.track / 2``): converts yaw rates
+            into rim speeds so that the v and w residuals are commensurable.
         delay: [control steps] current delay estimate.
         gains: (2,) identified gains ``(g_v, g_w)`` at the current delay, clamped; 1 until
             excited enough.
@@ -148,8 +147,11 @@ class ActuationMonitor:
     runs) the caller's bound falls to its floor until it recovers.
     """
 
-    def __init__(self, config: MonitorConfig = MonitorConfig()):
+    def __init__(self, config: MonitorConfig = MonitorConfig(), *, half_track: float):
+        if not (isinstance(half_track, (int, float)) and math.isfinite(half_track) and half_track > 0):
+            raise ValueError(f"half_track must be a positive finite number of metres, got {half_track!r}")
         self.config = config
+        self.half_track = float(half_track)
         self.reset()
 
     def reset(self) -> None:
@@ -202,7 +204,7 @@ class ActuationMonitor:
         self._svc = lam * self._svc + cand * vm
         self._scc = lam * self._scc + cand * cand
         self._weight = lam * self._weight + 1.0
-        scale = np.array([1.0, cfg.half_track**2])
+        scale = np.array([1.0, self.half_track**2])
         with np.errstate(divide="ignore", invalid="ignore"):
             g = np.where(self._scc > 1e-9, self._svc / np.maximum(self._scc, 1e-12), 1.0)
             res = np.maximum(self._svv - np.where(self._scc > 1e-9, self._svc * g, 0.0), 0.0)  # (m, 2)

@@ -1,13 +1,13 @@
 """Sequential quadratic programming back-end for the single-shooting tracking NLP.
 
 :class:`SqpBackend` solves ``min f(z, p) s.t. zl <= z <= zu, gl <= g(z, p) <= gu`` of a
-:class:`~sanav_mj.control.ocp.TrackingOCP` by a line-search SQP method, the way real-time MPC
+:class:`~sanav_mj.control.problem.TrackingOCP` by a line-search SQP method, the way real-time MPC
 codes do (Newton-type iterations, each a small dense QP, warm-started):
 
 - Evaluation: one generated, compiled C function returns everything an iteration needs
   at ``(z, p, y)``: ``f``, ``grad f`` (n,), ``g`` (m,), the Jacobian of ``g`` (m, n) and the
   Hessian of the Lagrangian ``f + y' g`` (n, n). It is compiled once with the flags of
-  :mod:`sanav_mj.control.ocp` and cached on disk under a hash of the functions; it is called
+  :mod:`sanav_mj.control.codegen` and cached on disk under a hash of the functions; it is called
   through ``ctypes`` on preallocated arrays (a few microseconds of Python per call).
 - Hessian (``hessian``): ``"exact"`` (default), the Hessian of the Lagrangian
   ``f + y' g``; ``"objective"``, the Hessian of ``f`` alone; ``"gauss-newton"``,
@@ -64,12 +64,9 @@ from pathlib import Path
 import casadi as cs
 import numpy as np
 
-from sanav_mj.control.ocp import (
-    SolveResult,
-    SolverSettings,
-    TrackingOCP,
-    cached_shared_library,
-)
+from sanav_mj.control.codegen import cached_shared_library
+from sanav_mj.control.problem import TrackingOCP
+from sanav_mj.control.solver import SolveResult, SolverSettings
 from sanav_mj.control.unicycle import rollout_cs
 
 #: Infinite bounds are passed to the QP solver as this magnitude (DAQP_INF: no bound).
@@ -132,7 +129,7 @@ def tracking_residuals(ocp: TrackingOCP) -> cs.SX:
 
     ``sqrt(q_x) * (x_k - xr_k)`` for k = 1..N-1, ``sqrt(q_n) * (x_N - xr_N)``,
     ``sqrt(q_u) * (u_k - ur_k)`` and ``sqrt(q_a) * (u_k - u_{k-1})`` for k = 0..N-1 (the
-    objective of :func:`~sanav_mj.control.ocp.build_tracking_ocp` without the position
+    objective of :func:`~sanav_mj.control.problem.build_tracking_ocp` without the position
     term; the k = 0 state term is a constant and left out).
     """
     n = ocp.horizon

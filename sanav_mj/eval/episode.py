@@ -15,8 +15,10 @@ from typing import Any
 import numpy as np
 
 from sanav_mj.control.base import Controller
+from sanav_mj.control.spec import ControllerSpec
 from sanav_mj.mapping.occupancy import OccupancyGrid
-from sanav_mj.mapping.safe_areas import SafeAreas
+from sanav_mj.mapping.quadtree import QuadtreeLeaves
+from sanav_mj.mapping.safe_areas import SafeAreaMap, SafeAreas
 from sanav_mj.planning.reference import Plan
 from sanav_mj.scene import Scenario, load_scenario
 from sanav_mj.sim.mismatch import Mismatch
@@ -32,52 +34,64 @@ class Prepared:
 
     Attributes:
         scenario: the loaded scenario.
-        grid: the inflated occupancy grid.
-        leaves: quadtree leaves (see :mod:`sanav_mj.mapping.quadtree`).
-        areas: merged safe areas and their graph.
+        map: the whole mapping-stage result (grid, leaves, cell boxes, areas, timing); its
+            parts are also reachable as ``grid``, ``leaves`` and ``areas``.
         plan: planned corridor and reference from the scenario start to its goal.
         timing_ms: [ms] stage times: rasterise, quadtree, merge, graph, plan, total.
-        safe_map: the whole mapping-stage result (grid, leaves, cell boxes, areas, timing).
     """
 
     scenario: Scenario
-    grid: OccupancyGrid
-    leaves: Any
-    areas: SafeAreas
+    map: SafeAreaMap
     plan: Plan
     timing_ms: dict[str, float] = field(default_factory=dict)
-    safe_map: Any = None
+
+    @property
+    def grid(self) -> OccupancyGrid:
+        """The inflated occupancy grid."""
+        return self.map.grid
+
+    @property
+    def leaves(self) -> QuadtreeLeaves:
+        """The quadtree leaves (see :mod:`sanav_mj.mapping.quadtree`)."""
+        return self.map.leaves
+
+    @property
+    def areas(self) -> SafeAreas:
+        """The merged safe areas and their graph."""
+        return self.map.areas
 
 
 @dataclass
 class RunOutcome:
-    """A finished run: its preparation, the episode and the ``run --json`` document."""
+    """A finished run: its preparation, the episode, the ``run --json`` document and the
+    controller spec it ran with."""
 
     prepared: Prepared
     controller: str
     start: np.ndarray
     episode: Episode
     document: dict[str, Any]
+    spec: ControllerSpec = ControllerSpec()
 
 
-def planner_config(robot) -> Any:
-    """Planner settings matched to the SA-MPC: the reference's speed, yaw-rate and
+def planner_config(robot, spec: ControllerSpec = ControllerSpec()) -> Any:
+    """Planner settings matched to the SA-MPC of ``spec``: the reference's speed, yaw-rate and
     acceleration caps are the planner's default fractions (0.8) of the MPC's resolved input
-    and rate bounds (``MPCConfig().limits(robot)``), not of the robot's, and its period is
+    and rate bounds (``spec.sa_mpc.limits(robot)``), not of the robot's, and its period is
     the MPC's ``dt``. A reference faster than the MPC may drive (1.6 m/s against 1.43 m/s
     for the MuJoCo robot) leaves the robot lagging behind it.
 
     Args:
         robot: the robot's nominal parameters.
+        spec: the controller spec (its ``sa_mpc`` settings are used whatever the controller).
 
     Returns:
         A :class:`sanav_mj.planning.PlannerConfig`.
     """
-    from sanav_mj.control.sa_mpc import MPCConfig
     from sanav_mj.planning import PlannerConfig
 
     base = PlannerConfig()
-    mpc = MPCConfig()
+    mpc = spec.sa_mpc
     lim = mpc.limits(robot)
     return PlannerConfig(
         dt=mpc.dt,
@@ -92,6 +106,7 @@ def prepare(
     resolution: float = 0.05,
     merge: str = "paper",
     start: np.ndarray | None = None,
+    controller: ControllerSpec = ControllerSpec(),
 ) -> Prepared:
     """Load (if needed), map and plan a scenario.
 
@@ -100,6 +115,7 @@ def prepare(
         resolution: [m] grid cell size.
         merge: merge rule of the safe areas (see ``sanav_mj.mapping.safe_areas.MERGE_METHODS``).
         start: (3,) [m, m, rad] start pose to plan from (default: the scenario's).
+        controller: the controller spec the planner is matched to (:func:`planner_config`).
     """
     from sanav_mj.mapping import MapConfig, build_map
     from sanav_mj.planning import plan as make_plan
@@ -109,11 +125,11 @@ def prepare(
     m = build_map(scenario.obstacles, scenario.bounds, inflation, MapConfig(resolution=resolution, merge=merge))
     t0 = time.perf_counter()
     pose = scenario.start if start is None else np.asarray(start, dtype=float)
-    plan = make_plan(m.areas, pose, scenario.goal, scenario.robot, planner_config(scenario.robot))
+    plan = make_plan(m.areas, pose, scenario.goal, scenario.robot, planner_config(scenario.robot, controller))
     timing = dict(m.timing_ms)
     timing["plan"] = (time.perf_counter() - t0) * 1e3
     timing["total"] = timing.get("total", 0.0) + timing["plan"]
-    return Prepared(scenario, m.grid, m.leaves, m.areas, plan, timing, m)
+    return Prepared(scenario, m, plan, timing)
 
 
 def areas_document(prep: Prepared) -> dict[str, Any]:
@@ -121,7 +137,7 @@ def areas_document(prep: Prepared) -> dict[str, Any]:
     from sanav_mj.planning import plan_document
 
     plan = plan_document(prep.plan)
-    doc = {"scenario": prep.scenario.name, **prep.safe_map.to_json()}
+    doc = {"scenario": prep.scenario.name, **prep.map.to_json()}
     doc["corridor"] = plan.pop("corridor")
     doc["reference"] = plan.pop("reference")
     doc["plan"] = plan
@@ -151,6 +167,7 @@ def run_scenario(
     rrd: Path | None = None,
     run_config: RunConfig | None = None,
     controller_obj: Controller | None = None,
+    controller_spec: ControllerSpec | None = None,
 ) -> RunOutcome:
     """Run one closed-loop episode of ``controller`` on a scenario and measure it.
 
@@ -166,6 +183,12 @@ def run_scenario(
         run_config: episode settings (``time_limit_s`` overrides its time limit).
         controller_obj: use this controller instance instead of building one by name
             (tests inject failing solvers this way).
+        controller_spec: the controller and its settings (default:
+            ``ControllerSpec(controller)``); its name must equal ``controller`` when both are
+            given (``controller`` may then be left at its default).
+
+    Raises:
+        ValueError: unknown controller name, or ``controller_spec.name`` differs from ``controller``.
     """
     from dataclasses import replace
 
@@ -175,17 +198,25 @@ def run_scenario(
     from sanav_mj.sim.plant import Plant
     from sanav_mj.sim.runner import run_episode
 
-    if isinstance(spec, Prepared):
-        prep0 = spec
-        scenario = spec.scenario
+    source = spec
+    if controller_spec is None:
+        cspec = ControllerSpec(controller)
+    elif controller_spec.name != controller and controller != "sa-mpc":
+        raise ValueError(f"controller_spec: names controller {controller_spec.name!r} but controller={controller!r}")
     else:
-        scenario = spec if isinstance(spec, Scenario) else load_scenario(spec)
+        cspec = controller_spec
+    controller = cspec.name
+    if isinstance(source, Prepared):
+        prep0 = source
+        scenario = source.scenario
+    else:
+        scenario = source if isinstance(source, Scenario) else load_scenario(source)
         prep0 = None
     start = initial_pose(scenario, seed, yaw)
     t0 = time.perf_counter()
     # The plan starts from the actual start pose; the map does not depend on it.
-    prep = prepare(scenario, resolution=prep0.grid.resolution if prep0 else resolution, start=start) \
-        if prep0 is None else _replan(prep0, start)
+    prep = prepare(scenario, resolution=prep0.grid.resolution if prep0 else resolution, start=start,
+                   controller=cspec) if prep0 is None else _replan(prep0, start, cspec)
     setup_ms = (time.perf_counter() - t0) * 1e3 if prep0 is None else prep.timing_ms.get("plan", 0.0)
     model = mismatched_model(scenario, mismatch) if mismatch.physical else None
     plant = Plant(scenario, model=model)
@@ -201,7 +232,7 @@ def run_scenario(
         episode = _no_path_episode(plant, start)
     else:
         ctrl = controller_obj if controller_obj is not None else make_controller(
-            controller, prep.scenario, prep.grid, prep.areas, prep.plan, solve_budget_ms=mismatch.solve_budget_ms
+            cspec, prep.scenario, prep.grid, prep.areas, prep.plan, solve_budget_ms=mismatch.solve_budget_ms
         )
         episode = run_episode(plant, ctrl, start, scenario.goal, cfg, mismatch, rng,
                               on_step=recorder.log_step if recorder else None,
@@ -219,7 +250,7 @@ def run_scenario(
     )
     if recorder is not None:
         recorder.finish(episode, doc)
-    return RunOutcome(prep, controller, start, episode, doc)
+    return RunOutcome(prep, controller, start, episode, doc, cspec)
 
 
 #: controllers that track the planned route: their ``stuck`` rule measures progress along it.
@@ -239,15 +270,15 @@ def planned_route(plan: Plan, goal: np.ndarray) -> np.ndarray | None:
     return route_of(plan.reference.states[:, :2], goal)
 
 
-def _replan(prep: Prepared, start: np.ndarray) -> Prepared:
+def _replan(prep: Prepared, start: np.ndarray, spec: ControllerSpec) -> Prepared:
     from sanav_mj.planning import plan as make_plan
 
     t0 = time.perf_counter()
     robot = prep.scenario.robot
-    plan = make_plan(prep.areas, start, prep.scenario.goal, robot, planner_config(robot))
+    plan = make_plan(prep.areas, start, prep.scenario.goal, robot, planner_config(robot, spec))
     timing = dict(prep.timing_ms)
     timing["plan"] = (time.perf_counter() - t0) * 1e3
-    return Prepared(prep.scenario, prep.grid, prep.leaves, prep.areas, plan, timing, prep.safe_map)
+    return Prepared(prep.scenario, prep.map, plan, timing)
 
 
 def _no_path_episode(plant, start: np.ndarray) -> Episode:

@@ -292,8 +292,8 @@ def run_reference(outcome: Any, steps: Sequence[int] = (0,)) -> RunReference:
       safe-area corridor), one polyline; none when planning found no path.
     - ``"mpc"``: the penalty MPC re-aims its reference at every step: the straight line to
       the goal from the *measured* pose, from ``lookahead`` ahead over the horizon
-      (:func:`sanav_mj.control.penalty_mpc.straight_reference` with the default settings
-      that ``make_controller("mpc")`` uses), one segment per step in ``steps``.
+      (:func:`sanav_mj.control.penalty_mpc.straight_reference` with the settings of the
+      run's controller spec, ``outcome.spec``), one segment per step in ``steps``.
     - ``"dwa"``, ``"dqn"`` and any other name: no reference path (DWA scores arcs by their
       heading to the goal; the DQN policy sees the goal's distance and bearing).
 
@@ -310,14 +310,11 @@ def run_reference(outcome: Any, steps: Sequence[int] = (0,)) -> RunReference:
             return RunReference(f"no reference path (planning: {prep.plan.reason})")
         return RunReference("reference (safe-area corridor)", [np.asarray(ref.states, dtype=float)[:, :2]])
     if name == "mpc":
-        from sanav_mj.control.penalty_mpc import (
-            PenaltyConfig,
-            resolved_reference_speed,
-            straight_reference,
-        )
-        from sanav_mj.control.sa_mpc import MPCConfig
+        from sanav_mj.control.penalty_mpc import resolved_reference_speed, straight_reference
+        from sanav_mj.control.spec import ControllerSpec
 
-        cfg, pen = MPCConfig(), PenaltyConfig()
+        spec = getattr(outcome, "spec", None) or ControllerSpec("mpc")
+        cfg, pen = spec.mpc, spec.penalty
         speed = resolved_reference_speed(prep.scenario.robot, cfg, pen)
         seen = tr.measured if len(tr.measured) == len(tr.t) else tr.pose
         if not len(seen):  # no step was run: the reference of the first step, from the start

@@ -3,20 +3,12 @@
 import numpy as np
 import pytest
 
-from sanav_mj.control.ocp import (
-    CACHE_ENV,
-    IpoptBackend,
-    PanocBackend,
-    SolverSettings,
-    ZeroFprBackend,
-    build_tracking_ocp,
-    compile_alpaqa_problem,
-    default_cache_dir,
-    make_backend,
-    shift_bound_multipliers,
-    shift_inputs,
-    shift_multipliers,
-)
+from sanav_mj.control.backend_alpaqa import PanocBackend, ZeroFprBackend
+from sanav_mj.control.backend_ipopt import IpoptBackend
+from sanav_mj.control.backends import make_backend
+from sanav_mj.control.codegen import CACHE_ENV, compile_alpaqa_problem, default_cache_dir
+from sanav_mj.control.problem import build_tracking_ocp, shift_bound_multipliers, shift_inputs, shift_multipliers
+from sanav_mj.control.solver import SolverSettings
 from sanav_mj.control.sa_mpc import SafeAreaPenalty
 from sanav_mj.control.unicycle import rollout_np
 

@@ -151,7 +151,7 @@ def test_drives_around_a_box_centred_on_the_straight_line():
     ctl = PenaltyMPC(ROBOT, obs, 0.35, goal, MPCConfig())
     ok, path = _run(ctl, [0.0, 0.0, 0.0], goal)
     assert ok and ctl.failures == 0
-    assert ctl.stats_counts.get("escape_taken", 0) >= 1  # the swerve came from an escape start
+    assert ctl.stats.counts.get("escape_taken", 0) >= 1  # the swerve came from an escape start
     # soft cost: it cuts into the inflated polygon (0.35 m) at the corner: 0.05 m measured with
     # the depth penalty, 0.11-0.13 m with the product form (docs/results.md)
     assert obs[0].signed_distance(path).min() > 0.35 - 0.08
@@ -189,7 +189,7 @@ def test_reference_known_answers():
 def test_blocked_known_answers():
     obs = [_box(2.0, 0.0, 0.0, 0.3, 0.3)]  # polygon x in [1.4, 2.6] with inflation 0.3
     ctl = PenaltyMPC(ROBOT, obs, 0.3, np.array([5.0, 0.0]), MPCConfig(), PenaltyConfig(reference_speed=1.0))
-    theta = ctl._obstacle_params(np.zeros(2))
+    theta = ctl.obstacle_params(np.zeros(2))
     # the reference travels N * 1 m/s * dt = 2 m; a plan is blocked below 60 % of it (1.2 m)
     creep = np.tile([1.1 / (ctl.N * ctl.dt), 0.0], (ctl.N, 1))  # 1.1 m
     assert ctl.blocked(np.array([0.4, 0.0, 0.0]), creep, theta)  # ends at x = 1.5, inside
@@ -205,9 +205,9 @@ def test_turn_plan_turns_by_the_error_within_the_bounds(err):
     u = ctl.turn_plan(err)
     assert u.shape == (ctl.N, 2) and np.all(u[:, 0] == 0.0)
     steps = np.abs(np.diff(np.vstack(([0.0, 0.0], u)), axis=0))
-    assert np.all(steps[:, 1] <= ctl._rate_step[1] + 1e-12) and np.all(np.abs(u[:, 1]) <= ctl.limits.w_max)
+    assert np.all(steps[:, 1] <= ctl.rate_step[1] + 1e-12) and np.all(np.abs(u[:, 1]) <= ctl.limits.w_max)
     assert np.all(np.sign(u[:, 1]) * np.sign(err) >= 0) and u[-1, 1] == 0.0  # one direction, ends at rest
-    assert abs(u[:, 1].sum() * ctl.dt - err) <= ctl._rate_step[1] * ctl.dt  # within one step's turn
+    assert abs(u[:, 1].sum() * ctl.dt - err) <= ctl.rate_step[1] * ctl.dt  # within one step's turn
 
 
 def test_opening_turn_when_facing_away_then_the_mpc():
@@ -221,7 +221,7 @@ def test_opening_turn_when_facing_away_then_the_mpc():
         x = step_np(x, [cmd.v, cmd.w], 0.1)
     n_turn = statuses.index("ok")
     assert n_turn > 3 and statuses[:n_turn] == ["turn"] * n_turn and "turn" not in statuses[n_turn:]
-    assert ctl.stats_counts["turn"] == n_turn and ctl.failures == 0
+    assert ctl.stats.counts["turn"] == n_turn and ctl.failures == 0
     assert x[0] > 0.5  # then it drives to the goal
     # a small heading error at the first step: no opening turn
     ctl.reset(np.array([0.0, 0.0, 0.5]))
@@ -232,7 +232,7 @@ def test_forward_only_sets_the_lower_speed_bound():
     shared = PenaltyMPC(ROBOT, [], 0.3, np.array([3.0, 0.0]))
     assert shared.limits.v_min == MPCConfig().limits(ROBOT).v_min < 0  # default: SA-MPC's bounds
     fwd = PenaltyMPC(ROBOT, [], 0.3, np.array([3.0, 0.0]), MPCConfig(), PenaltyConfig(forward_only=True))
-    assert fwd.limits.v_min == 0.0 and fwd._z_lb[0] == 0.0
+    assert fwd.limits.v_min == 0.0 and fwd.input_bounds()[0][0] == 0.0
 
 
 def test_injected_failures_fall_back_then_recover():
@@ -335,7 +335,7 @@ def test_every_solve_respects_a_tiny_solve_budget(budget_ms):
     x = np.array([1.0, 0.0, 0.0])
     ctl.reset(x)
     cmd = ctl.step(Observation(t=0.0, pose=x, velocity=np.zeros(2)))
-    assert ctl.stats_counts["escape_tried"] == 1
+    assert ctl.stats.counts["escape_tried"] == 1
     main, escapes = ctl.backend.results, ctl.escape_backend.results
     assert len(main) == 1 and len(escapes) == len(PenaltyConfig().escape_yaw_rates)
     if budget_ms is None:

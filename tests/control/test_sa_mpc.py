@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import casadi as cs
 import numpy as np
 import pytest
 
 from sanav_mj.control.base import Observation
-from sanav_mj.control.sa_mpc import (
-    SAMPC,
+from sanav_mj.control import sa_mpc
+from sanav_mj.control.adaptation import AdaptationConfig
+from sanav_mj.control.sa_mpc import SAMPC, MPCConfig, SafeAreaPenalty
+from sanav_mj.control.tracking import Problem
+from sanav_mj.control.stages import (
     CorridorChain,
-    MPCConfig,
-    SafeAreaPenalty,
     assign_stages,
     box_intersection,
     box_slack,
@@ -130,7 +133,7 @@ def test_assignment_respects_first_candidates(l_case):
 
 
 def test_fast_assignment_equals_the_dynamic_programme(u_case, monkeypatch):
-    import sanav_mj.control.sa_mpc as sa
+    import sanav_mj.control.stages as sa
 
     areas, plan = u_case
     chain = CorridorChain.build(areas, plan.corridor, 0.02)
@@ -147,11 +150,11 @@ def test_fast_assignment_equals_the_dynamic_programme(u_case, monkeypatch):
             first[max(0, a - 2) : a + 3] = True
         cases.append((guess, first))
     hits = []
-    real = sa._assign_feasible
-    monkeypatch.setattr(sa, "_assign_feasible", lambda *a: hits.append(real(*a)) or hits[-1])
+    real = sa.assign_feasible
+    monkeypatch.setattr(sa, "assign_feasible", lambda *a: hits.append(real(*a)) or hits[-1])
     fast = [assign_stages(chain, g, f, tol=1e-3) for g, f in cases]
     assert sum(h is not None for h in hits) > 150  # the fast path answered most of them
-    monkeypatch.setattr(sa, "_assign_feasible", lambda *a: None)  # always the dynamic programme
+    monkeypatch.setattr(sa, "assign_feasible", lambda *a: None)  # always the dynamic programme
     slow = [assign_stages(chain, g, f, tol=1e-3) for g, f in cases]
     for a, b in zip(fast, slow):
         np.testing.assert_array_equal(a, b)
@@ -193,13 +196,13 @@ def _check_prediction_constraints(ctl: SAMPC, cmd, tol=1e-3):
     xs = cmd.predicted
     assert xs.shape == (n + 1, 3) and np.all(np.isfinite(xs))
     # the inputs are the plan stored in the controller
-    u = ctl._active.u
+    u = ctl.plan_inputs
     np.testing.assert_allclose(rollout_np(xs[0], u, ctl.dt), xs, atol=1e-9)
     lim = ctl.limits
     assert np.all(u[:, 0] >= lim.v_min - tol) and np.all(u[:, 0] <= lim.v_max + tol)
     assert np.all(np.abs(u[:, 1]) <= lim.w_max + tol)
     du = np.diff(np.vstack((info.u_prev, u)), axis=0)
-    assert np.all(np.abs(du) <= ctl._rate_step + tol)
+    assert np.all(np.abs(du) <= ctl.rate_step + tol)
     if ctl.config.terminal_stop:
         assert abs(u[-1, 0]) <= tol
     assert np.all(box_slack(xs[1:, :2], info.boxes[1:]) >= -tol)
@@ -217,8 +220,7 @@ def _check_prediction_constraints(ctl: SAMPC, cmd, tol=1e-3):
 def test_solved_prediction_respects_every_constraint(l_controller):
     ctl = l_controller
     x = np.array([3.3, 0.6, 0.4])
-    ctl.reset(x)
-    ctl._ref_index = 40  # mid-way: the horizon crosses the portal
+    ctl.reset(x, progress=40)  # mid-way: the horizon crosses the portal
     cmd = None
     for k in range(3):
         cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=measured_velocity(cmd)))
@@ -234,13 +236,13 @@ def test_ipopt_and_panoc_agree_on_the_sa_mpc_problem(l_case):
     x = np.array([0.6, 0.4, 0.3])
     cmds = {}
     for solver in ("panoc", "ipopt"):
-        ctl = SAMPC(ROBOT, areas, plan, cfg.replace(solver=solver))
+        ctl = SAMPC(ROBOT, areas, plan, replace(cfg, solver=solver))
         ctl.reset(x)
         pose = x.copy()
         for k in range(15):  # same measured states: each controller sees the same sequence
             cmd = ctl.step(Observation(t=0.1 * k, pose=pose, velocity=np.zeros(2)))
             pose = step_np(pose, [0.5, 0.1], ctl.dt)
-        cmds[solver] = (cmd, ctl._active.u.copy())
+        cmds[solver] = (cmd, ctl.plan_inputs.copy())
     (ca, ua), (cb, ub) = cmds["panoc"], cmds["ipopt"]
     assert ca.status == "ok" and cb.status == "ok"
     np.testing.assert_allclose(ua, ub, atol=2e-3)
@@ -317,7 +319,7 @@ def test_narrow_passage_is_traversed_thanks_to_exit_targets(monkeypatch):
     assert ok and inside_union(path, areas.rects).all()
     # without the exit targets the far reference pins the plan to the wall above the portal
     stuck = SAMPC(ROBOT, areas, plan, MPCConfig())
-    monkeypatch.setattr(stuck, "_exit_targets", lambda xr, ur, s, p0, yaw0: (xr, ur))
+    monkeypatch.setattr(sa_mpc, "exit_targets", lambda chain, ref_member, xr, ur, s, p0, yaw0: (xr, ur))
     ok, path, _ = run_closed_loop(stuck, [0.5, 0.6, 0.0], plan.goal, areas.rects, steps=150)
     assert not ok and path[-1, 0] < 2.0
 
@@ -365,8 +367,8 @@ def test_thin_portal_at_right_angles_does_not_stall(monkeypatch):
     ok, path, _ = run_closed_loop(ctl, start, plan.goal, areas.rects, steps=150)
     assert ok and inside_union(path, areas.rects).all()
     stall = SAMPC(robot, areas, plan, MPCConfig())
-    exit_targets = stall._exit_targets
-    monkeypatch.setattr(stall, "_exit_targets", lambda xr, ur, s, p0, yaw0: (exit_targets(xr, ur, s, p0, yaw0)[0], ur))
+    real = sa_mpc.exit_targets  # the targets without their zero inputs
+    monkeypatch.setattr(sa_mpc, "exit_targets", lambda *args: (real(*args)[0], args[3]))
     ok, path, _ = run_closed_loop(stall, start, plan.goal, areas.rects, steps=150)
     assert not ok and path[-1, 0] < 1.2  # stopped for good in R5, below the portal
 
@@ -384,8 +386,7 @@ def test_measured_position_outside_its_box_is_recovered(l_case):
     areas, plan = l_case
     ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
     x = np.array([1.0, -0.03, 0.0])  # at rest, 3 cm below R0 (5 cm below its shrunk box)
-    ctl.reset(x)
-    ctl._ref_index = 5
+    ctl.reset(x, progress=5)
     first = None
     cmd = None
     for k in range(25):
@@ -479,7 +480,7 @@ def test_controller_protocol_attributes(l_controller):
 def test_reference_yaw_is_shifted_to_the_measured_branch(l_controller):
     ctl = l_controller
     ctl.reset(np.array([0.5, 0.5, 0.0]))
-    xr, ur = ctl.horizon_reference(np.array([0.5, 0.5, 4 * np.pi + 0.1]))
+    xr, ur = ctl.reference(np.array([0.5, 0.5, 4 * np.pi + 0.1]))
     assert abs(xr[0, 2] - (4 * np.pi + 0.1)) < np.pi
     assert ur.shape == (ctl.N, 2) and xr.shape == (ctl.N + 1, 3)
 
@@ -492,11 +493,11 @@ MJ_RATES = RobotParams(**{**ROBOT.__dict__, "w_max": 3.0, "alpha_max": 4.0})  # 
 def test_turn_plan_is_the_time_optimal_rest_to_rest_profile(l_case):
     areas, plan = l_case
     ctl = SAMPC(MJ_RATES, areas, plan, MPCConfig())
-    u = ctl._turn_plan(1.0)
+    u = ctl.turn_plan(1.0)
     np.testing.assert_allclose(u[:, 0], 0.0)
     np.testing.assert_allclose(u[:10, 1], [0.4, 0.8, 1.2, 1.6, 2.0, 1.6, 1.2, 0.8, 0.4, 0.0], atol=1e-12)
     np.testing.assert_allclose(u[10:], 0.0)
-    long = ctl._turn_plan(-3.0)  # reaches the yaw-rate bound, then brakes to rest
+    long = ctl.turn_plan(-3.0)  # reaches the yaw-rate bound, then brakes to rest
     assert np.all(long[:, 1] <= 1e-12) and np.min(long[:, 1]) == pytest.approx(-3.0)
     for w in (u[:, 1], long[:, 1]):
         assert np.sum(w) * 0.1 == pytest.approx(np.sign(w.sum()) * abs(w.sum()) * 0.1)
@@ -528,7 +529,7 @@ def test_opening_turn_on_the_spot_then_the_mpc(l_case):
     # input and rate bounds hold across the hand-over and after
     u = np.array([[c.v, c.w] for c in cmds])
     du = np.abs(np.diff(np.vstack(([0.0, 0.0], u)), axis=0))
-    assert np.all(du <= ctl._rate_step + 1e-6)
+    assert np.all(du <= ctl.rate_step + 1e-6)
     assert np.all(np.abs(u[:, 1]) <= ctl.limits.w_max + 1e-9)
     assert ctl.stats.failures == 0 and np.hypot(*(x[:2] - plan.goal)) < 0.05
 
@@ -547,9 +548,7 @@ def test_opening_turn_can_be_disabled(l_case):
 def test_implied_input_bounds_known_answer_and_never_cut_a_feasible_plan(l_case):
     areas, plan = l_case
     ctl = SAMPC(MJ_RATES, areas, plan, MPCConfig())  # rate step (0.15 m/s, 0.4 rad/s), N = 20
-    ctl.reset(np.array([0.5, 0.5, 0.0]))
-    ctl._turning = False
-    ctl._u_prev = np.array([1.0, 0.5])
+    ctl.reset(np.array([0.5, 0.5, 0.0]), u_prev=np.array([1.0, 0.5]), opening_turn=False)  # a cruise state
     ctl.step(Observation(t=0.0, pose=np.array([0.5, 0.5, 0.0]), velocity=np.zeros(2)))
     lo, hi = ctl.last.input_lower, ctl.last.input_upper
     lim, n = ctl.limits, ctl.N
@@ -583,7 +582,7 @@ def test_closed_loop_with_delay_and_geometry_mismatch(u_case, delay):
     areas, plan = u_case
     steps = {}
     for compensate in (True, False):
-        ctl = SAMPC(ROBOT, areas, plan, MPCConfig(latency_compensation=compensate))
+        ctl = SAMPC(ROBOT, areas, plan, MPCConfig(adaptation=AdaptationConfig(latency_compensation=compensate)))
         ok, path, cmds = run_closed_loop(
             ctl, [0.5, 0.5, 1.57], plan.goal, areas.rects[plan.corridor], gains=(1.1, 1.1 / 0.9), delay=delay
         )
@@ -601,56 +600,54 @@ def test_effective_state_rolls_the_pose_through_the_commands_in_flight(l_case):
     areas, plan = l_case
     ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
     pose = np.array([0.5, 0.5, 0.3])
-    assert ctl.effective_state(pose) is pose  # no delay identified yet
+    assert ctl.adaptation.effective_state(pose) is pose  # no delay identified yet
     ctl.monitor.delay = 2
     ctl.monitor.gains = np.array([1.1, 0.9])
     ctl.monitor.record([0.4, 0.5])
     ctl.monitor.record([0.6, -0.2])
     want = step_np(step_np(pose, [0.44, 0.45], ctl.dt), [0.66, -0.18], ctl.dt)
-    np.testing.assert_allclose(ctl.effective_state(pose), want, atol=1e-12)
-    assert ctl.effective_state(pose) is not pose
-    off = SAMPC(ROBOT, areas, plan, MPCConfig(latency_compensation=False))
+    np.testing.assert_allclose(ctl.adaptation.effective_state(pose), want, atol=1e-12)
+    assert ctl.adaptation.effective_state(pose) is not pose
+    off = SAMPC(ROBOT, areas, plan, MPCConfig(adaptation=AdaptationConfig(latency_compensation=False)))
     off.monitor.delay = 2
-    assert off.effective_state(pose) is pose
+    assert off.adaptation.effective_state(pose) is pose
 
 
 def test_speed_cap_known_answers(l_controller):
     ctl = l_controller
     vm = ctl.limits.v_max
-    assert ctl.speed_cap(0.0) == vm
-    assert ctl.speed_cap(0.03) == pytest.approx(vm * (1 - 0.03 / 0.15))
-    assert ctl.speed_cap(1.0) == pytest.approx(vm * 0.25)
-    assert SAMPC(ROBOT, ctl.areas, ctl.plan, MPCConfig(excursion_stop=None)).speed_cap(1.0) == vm
+    assert ctl.adaptation.speed_cap(0.0) == vm
+    assert ctl.adaptation.speed_cap(0.03) == pytest.approx(vm * (1 - 0.03 / 0.15))
+    assert ctl.adaptation.speed_cap(1.0) == pytest.approx(vm * 0.25)
+    assert SAMPC(ROBOT, ctl.areas, ctl.plan, MPCConfig(adaptation=AdaptationConfig(excursion_stop=None))).adaptation.speed_cap(1.0) == vm
 
 
 def test_residual_cap_known_answers(l_case):
     areas, plan = l_case
-    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(residual_free=0.05, residual_stop=0.3, residual_floor=0.1))
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(adaptation=AdaptationConfig(residual_free=0.05, residual_stop=0.3, residual_floor=0.1)))
     vm = ctl.limits.v_max
     ctl.monitor.residual = np.array([0.04, 0.0])
-    assert ctl.residual_cap() == vm
+    assert ctl.adaptation.residual_cap() == vm
     ctl.monitor.residual = np.array([0.0, 0.175 / 0.19])  # 0.175 m/s at the rim: half way
-    assert ctl.residual_cap() == pytest.approx(vm * (1 - 0.9 * 0.5))
+    assert ctl.adaptation.residual_cap() == pytest.approx(vm * (1 - 0.9 * 0.5))
     ctl.monitor.residual = np.array([0.3, 0.3])
-    assert ctl.residual_cap() == pytest.approx(0.1 * vm)
-    off = SAMPC(ROBOT, areas, plan, MPCConfig(residual_stop=None))
+    assert ctl.adaptation.residual_cap() == pytest.approx(0.1 * vm)
+    off = SAMPC(ROBOT, areas, plan, MPCConfig(adaptation=AdaptationConfig(residual_stop=None)))
     off.monitor.residual = np.array([1.0, 1.0])
-    assert off.residual_cap() == vm
-    with pytest.raises(ValueError, match="MPCConfig.residual_stop"):
-        MPCConfig(residual_free=0.3, residual_stop=0.2)
-    with pytest.raises(ValueError, match="MPCConfig.residual_floor"):
-        MPCConfig(residual_floor=1.5)
-    with pytest.raises(ValueError, match="MPCConfig.excursion_stop"):
-        MPCConfig(excursion_stop=0.0)
+    assert off.adaptation.residual_cap() == vm
+    with pytest.raises(ValueError, match="AdaptationConfig.residual_stop"):
+        MPCConfig(adaptation=AdaptationConfig(residual_free=0.3, residual_stop=0.2))
+    with pytest.raises(ValueError, match="AdaptationConfig.residual_floor"):
+        MPCConfig(adaptation=AdaptationConfig(residual_floor=1.5))
+    with pytest.raises(ValueError, match="AdaptationConfig.excursion_stop"):
+        MPCConfig(adaptation=AdaptationConfig(excursion_stop=0.0))
 
 
 def test_outside_its_box_at_speed_the_speed_bound_brakes_to_the_cap(l_case):
     areas, plan = l_case
-    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(pose_filter=None))  # a real jump, not noise
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(adaptation=AdaptationConfig(pose_filter=None)))  # a real jump, not noise
     x = np.array([1.0, 0.5, 0.0])
-    ctl.reset(x)
-    ctl._ref_index = 5
-    ctl._turning = False
+    ctl.reset(x, progress=5, opening_turn=False)
     for k in range(12):  # get up to speed along R0
         cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=np.array([cmd.v, cmd.w]) if k else np.zeros(2)))
         x = step_np(x, [cmd.v, cmd.w], ctl.dt)
@@ -658,7 +655,7 @@ def test_outside_its_box_at_speed_the_speed_bound_brakes_to_the_cap(l_case):
     assert v0 > 0.4
     x_out = x + np.array([0.0, -0.58, 0.0])  # measured 10 cm below the shrunk R0 box (y >= 0.02)
     cmd = ctl.step(Observation(t=1.2, pose=x_out, velocity=np.array([cmd.v, cmd.w])))
-    cap = ctl.speed_cap(0.02 - x_out[1])
+    cap = ctl.adaptation.speed_cap(0.02 - x_out[1])
     ub = ctl.last.input_upper[:, 0]
     a_dt = ctl.limits.a_max * ctl.dt
     assert cap < v0
@@ -670,7 +667,7 @@ def test_outside_its_box_at_speed_the_speed_bound_brakes_to_the_cap(l_case):
 def test_fallback_brakes_when_the_previous_plan_no_longer_fits(l_case):
     areas, plan = l_case
     fail = {12}
-    cfg = MPCConfig(pose_filter=None)  # the jump below is real, not noise to filter out
+    cfg = MPCConfig(adaptation=AdaptationConfig(pose_filter=None))  # the jump below is real, not noise to filter out
     ctl = SAMPC(ROBOT, areas, plan, cfg, failure_injector=lambda k: k in fail)
     x = np.array([0.5, 0.5, 0.0])
     ctl.reset(x)
@@ -689,7 +686,7 @@ def test_fallback_brakes_when_the_previous_plan_no_longer_fits(l_case):
     assert abs(cmd.w - w0) <= ctl.limits.alpha_max * ctl.dt + 1e-9
     assert cmd.w > w0  # it steers left, back into R0
     # the same step with the paper-style fallback replays the old plan
-    old = SAMPC(ROBOT, areas, plan, cfg.replace(fallback_brake=False), failure_injector=lambda k: k in fail)
+    old = SAMPC(ROBOT, areas, plan, replace(cfg, fallback_brake=False), failure_injector=lambda k: k in fail)
     y = np.array([0.5, 0.5, 0.0])
     old.reset(y)
     c = None
@@ -701,8 +698,7 @@ def test_fallback_brakes_when_the_previous_plan_no_longer_fits(l_case):
 
 def test_brake_plan_stops_at_the_rate_bounds(l_controller):
     ctl = l_controller
-    ctl.reset(np.array([1.0, 0.5, 0.0]))
-    ctl._u_prev = np.array([1.2, 0.8])
+    ctl.reset(np.array([1.0, 0.5, 0.0]), u_prev=np.array([1.2, 0.8]))  # a cruise state
     u = ctl.brake_plan(np.array([1.0, 0.5, 0.0]))
     a, al = ctl.limits.a_max * ctl.dt, ctl.limits.alpha_max * ctl.dt
     np.testing.assert_allclose(u[:, 0], np.maximum(1.2 - a * np.arange(1, ctl.N + 1), 0.0))
@@ -721,6 +717,11 @@ def test_default_limits_are_deterministic(l_case):
     np.testing.assert_array_equal(runs[0], runs[1])
 
 
+def _problem(g_lb, g_ub, z_lb, z_ub, u, guess):
+    n = len(u)
+    return Problem(np.zeros(0), z_lb, z_ub, g_lb, g_ub, np.zeros(2 * n), u, guess, z_lb, z_ub)
+
+
 def test_shift_fits_up_to_the_box_margin(l_controller):
     ctl = l_controller
     n = ctl.N
@@ -731,35 +732,35 @@ def test_shift_fits_up_to_the_box_margin(l_controller):
     g_lb = np.concatenate((np.tile([0.9, 0.4], n), np.tile([-0.15, -0.5], n - 1)))
     g_ub = np.concatenate((np.tile([1.1, 0.6], n), np.tile([0.15, 0.5], n - 1)))
     z_lb, z_ub = -np.ones(2 * n), np.ones(2 * n)
-    assert ctl._shift_fits(g_lb, g_ub, z_lb, z_ub, u, guess)
+    assert ctl.shift_fits(_problem(g_lb, g_ub, z_lb, z_ub, u, guess))
     out = guess.copy()
     out[5, 1] = 0.6 + 0.5 * m  # half the margin beyond its box: still inside the member
-    assert ctl._shift_fits(g_lb, g_ub, z_lb, z_ub, u, out)
+    assert ctl.shift_fits(_problem(g_lb, g_ub, z_lb, z_ub, u, out))
     out[5, 1] = 0.6 + 1.5 * m  # beyond the member
-    assert not ctl._shift_fits(g_lb, g_ub, z_lb, z_ub, u, out)
+    assert not ctl.shift_fits(_problem(g_lb, g_ub, z_lb, z_ub, u, out))
     jump = u.copy()
     jump[3, 0] = 0.2  # a rate row violated: no margin there
-    assert not ctl._shift_fits(g_lb, g_ub, z_lb, z_ub, jump, guess)
+    assert not ctl.shift_fits(_problem(g_lb, g_ub, z_lb, z_ub, jump, guess))
     steady = np.full((n, 2), 0.2)  # no rate row violated, but above an input bound of 0.1
-    assert ctl._shift_fits(g_lb, g_ub, z_lb, z_ub, steady, guess)
-    assert not ctl._shift_fits(g_lb, g_ub, z_lb, np.full(2 * n, 0.1), steady, guess)
+    assert ctl.shift_fits(_problem(g_lb, g_ub, z_lb, z_ub, steady, guess))
+    assert not ctl.shift_fits(_problem(g_lb, g_ub, z_lb, np.full(2 * n, 0.1), steady, guess))
 
 
 def test_residual_yaw_cap_known_answers(l_case):
     areas, plan = l_case
-    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(residual_free=0.05, residual_stop=0.3, residual_floor=0.1))
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(adaptation=AdaptationConfig(residual_free=0.05, residual_stop=0.3, residual_floor=0.1)))
     wm = ctl.limits.w_max
     ctl.monitor.residual = np.array([0.04, 0.0])
-    assert ctl.residual_yaw_cap() == wm
+    assert ctl.adaptation.residual_yaw_cap() == wm
     ctl.monitor.residual = np.array([0.0, 0.175 / 0.19])  # half way: the speed bound is 55 %
-    assert ctl.residual_yaw_cap() == pytest.approx(wm * (1 - 0.9 * 0.5))
+    assert ctl.adaptation.residual_yaw_cap() == pytest.approx(wm * (1 - 0.9 * 0.5))
     ctl.monitor.residual = np.array([0.3, 0.3])  # speed bound 10 %, yaw rate floor 30 %
-    assert ctl.residual_yaw_cap() == pytest.approx(0.3 * wm)
-    off = SAMPC(ROBOT, areas, plan, MPCConfig(residual_yaw_floor=None))
+    assert ctl.adaptation.residual_yaw_cap() == pytest.approx(0.3 * wm)
+    off = SAMPC(ROBOT, areas, plan, MPCConfig(adaptation=AdaptationConfig(residual_yaw_floor=None)))
     off.monitor.residual = np.array([1.0, 1.0])
-    assert off.residual_yaw_cap() == wm
-    with pytest.raises(ValueError, match="MPCConfig.residual_yaw_floor"):
-        MPCConfig(residual_yaw_floor=-0.1)
+    assert off.adaptation.residual_yaw_cap() == wm
+    with pytest.raises(ValueError, match="AdaptationConfig.residual_yaw_floor"):
+        MPCConfig(adaptation=AdaptationConfig(residual_yaw_floor=-0.1))
 
 
 def _cruise_with_residual(ctl, residual, fail_at=None, steps=12):
@@ -782,7 +783,7 @@ def test_residual_derating_bounds_the_yaw_rate_at_the_rate_bound(l_case):
     areas, plan = l_case
     ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
     _, _, w0 = _cruise_with_residual(ctl, [0.3, 0.3])
-    wcap = ctl.residual_yaw_cap()
+    wcap = ctl.adaptation.residual_yaw_cap()
     assert wcap < ctl.limits.w_max
     al = ctl.limits.alpha_max * ctl.dt
     k = np.arange(1, ctl.N + 1)
@@ -797,7 +798,7 @@ def test_residual_derating_bounds_the_yaw_rate_at_the_rate_bound(l_case):
         atol=1e-12,
     )
     assert np.all(ctl.last.input_upper[2:, 1] == pytest.approx(wcap))
-    off = SAMPC(ROBOT, areas, plan, MPCConfig(residual_yaw_floor=None))
+    off = SAMPC(ROBOT, areas, plan, MPCConfig(adaptation=AdaptationConfig(residual_yaw_floor=None)))
     _cruise_with_residual(off, [0.3, 0.3])
     assert off.last.input_upper[-1, 1] == off.limits.w_max
 
@@ -806,10 +807,10 @@ def test_fallback_does_not_follow_the_old_plan_faster_than_the_derated_speed(l_c
     areas, plan = l_case
     ctl = SAMPC(ROBOT, areas, plan, MPCConfig(), failure_injector=lambda k: k == 12)
     cmd, v0, _ = _cruise_with_residual(ctl, [0.3, 0.3])
-    assert v0 > 0.4 and ctl.residual_cap() < v0 - ctl.limits.a_max * ctl.dt
+    assert v0 > 0.4 and ctl.adaptation.residual_cap() < v0 - ctl.limits.a_max * ctl.dt
     assert cmd.status == "fallback_stop"  # the rest of the plan cruises on: brake instead
     assert cmd.v == pytest.approx(v0 - ctl.limits.a_max * ctl.dt)
-    old = SAMPC(ROBOT, areas, plan, MPCConfig(fallback_derated=False), failure_injector=lambda k: k == 12)
+    old = SAMPC(ROBOT, areas, plan, MPCConfig(adaptation=AdaptationConfig(fallback_derated=False)), failure_injector=lambda k: k == 12)
     cmd, v0, _ = _cruise_with_residual(old, [0.3, 0.3])
     assert cmd.status == "fallback_shift" and cmd.v > v0 - old.limits.a_max * old.dt
 
@@ -817,23 +818,22 @@ def test_fallback_does_not_follow_the_old_plan_faster_than_the_derated_speed(l_c
 def test_the_pose_filter_feeds_the_problem(l_case):
     areas, plan = l_case
     ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
-    assert ctl.pose_filter is not None
-    ctl.reset(np.array([0.5, 0.5, 0.0]))
-    ctl.pose_filter.update = lambda pose, velocity: np.array([0.6, 0.45, 0.1])
-    ctl._turning = False
+    assert ctl.adaptation.pose_filter is not None
+    ctl.reset(np.array([0.5, 0.5, 0.0]), opening_turn=False)
+    ctl.adaptation.pose_filter.update = lambda pose, velocity: np.array([0.6, 0.45, 0.1])
     ctl.step(Observation(t=0.0, pose=np.array([0.5, 0.5, 0.0]), velocity=np.zeros(2)))
     np.testing.assert_array_equal(ctl.last.guess_states[0], [0.6, 0.45, 0.1])
-    off = SAMPC(ROBOT, areas, plan, MPCConfig(pose_filter=None))
-    assert off.pose_filter is None
-    with pytest.raises(ValueError, match="MPCConfig.pose_filter"):
-        MPCConfig(pose_filter=0.1)
+    off = SAMPC(ROBOT, areas, plan, MPCConfig(adaptation=AdaptationConfig(pose_filter=None)))
+    assert off.adaptation.pose_filter is None
+    with pytest.raises(ValueError, match="AdaptationConfig.pose_filter"):
+        MPCConfig(adaptation=AdaptationConfig(pose_filter=0.1))
 
 
 def test_closed_loop_with_large_noise_the_pose_filter_calms_the_commands(u_case):
     areas, plan = u_case
     rects = areas.rects[plan.corridor]
     jerk = {}
-    for name, cfg in (("filter", MPCConfig()), ("raw", MPCConfig(pose_filter=None))):
+    for name, cfg in (("filter", MPCConfig()), ("raw", MPCConfig(adaptation=AdaptationConfig(pose_filter=None)))):
         ctl = SAMPC(ROBOT, areas, plan, cfg)
         ok, _, cmds = run_closed_loop(ctl, [0.5, 0.5, 1.57], plan.goal, rects, noise=0.1, seed=3)
         assert ok
@@ -854,28 +854,28 @@ def test_default_iteration_caps_bound_the_solver_effort():
 
 def test_traction_accel_known_answers(l_case):
     areas, plan = l_case
-    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(traction_probe=1.25, traction_floor=0.1, traction_recovery=0.05))
+    ctl = SAMPC(ROBOT, areas, plan, MPCConfig(adaptation=AdaptationConfig(traction_probe=1.25, traction_floor=0.1, traction_recovery=0.05)))
     a_max = ctl.limits.a_max
-    assert ctl.accel == a_max and ctl.traction_accel() == a_max  # no slip seen
+    assert ctl.accel == a_max and ctl.adaptation.traction_accel(ctl.accel) == a_max  # no slip seen
     ctl.monitor.slipping = True
     ctl.monitor.peak_dv = 0.04  # [m/s per period]: 0.4 m/s^2
-    assert ctl.traction_accel() == pytest.approx(1.25 * 0.4)
+    assert ctl.adaptation.traction_accel(ctl.accel) == pytest.approx(1.25 * 0.4)
     ctl.monitor.peak_dv = 0.0
-    assert ctl.traction_accel() == pytest.approx(0.1 * a_max)  # the floor
+    assert ctl.adaptation.traction_accel(ctl.accel) == pytest.approx(0.1 * a_max)  # the floor
     ctl.monitor.peak_dv = 1.0
-    assert ctl.traction_accel() == a_max  # never above the model's bound
+    assert ctl.adaptation.traction_accel(ctl.accel) == a_max  # never above the model's bound
     ctl.monitor.slipping = False
     ctl.accel = 0.5
-    assert ctl.traction_accel() == pytest.approx(0.5 * 1.05)  # recovers while no slip is seen
+    assert ctl.adaptation.traction_accel(ctl.accel) == pytest.approx(0.5 * 1.05)  # recovers while no slip is seen
     ctl.accel = a_max
-    assert ctl.traction_accel() == a_max
-    off = SAMPC(ROBOT, areas, plan, MPCConfig(traction_probe=None))
+    assert ctl.adaptation.traction_accel(ctl.accel) == a_max
+    off = SAMPC(ROBOT, areas, plan, MPCConfig(adaptation=AdaptationConfig(traction_probe=None)))
     off.monitor.slipping = True
-    assert off.traction_accel() == a_max
+    assert off.adaptation.traction_accel(off.accel) == a_max
     for kw, match in ((dict(traction_probe=0.0), "traction_probe"), (dict(traction_floor=1.5), "traction_floor"),
                       (dict(traction_recovery=-0.1), "traction_recovery")):
-        with pytest.raises(ValueError, match=f"MPCConfig.{match}"):
-            MPCConfig(**kw)
+        with pytest.raises(ValueError, match=f"AdaptationConfig.{match}"):
+            AdaptationConfig(**kw)
 
 
 def test_a_slipping_plant_is_planned_to_brake_at_the_grip_it_showed(l_case):
@@ -902,7 +902,7 @@ def test_a_slipping_plant_is_planned_to_brake_at_the_grip_it_showed(l_case):
     assert np.all(ctl.last.input_upper[:, 0] <= (ctl.N - 1 - k) * a * ctl.dt + 1e-12)
     assert np.all(ctl.last.input_upper[:, 0] <= v0 + (k + 1) * a * ctl.dt + 1e-12)
     plan_v = ctl.brake_plan(x)[:, 0]
-    np.testing.assert_allclose(plan_v, np.maximum(ctl._u_prev[0] - (k + 1) * a * ctl.dt, 0.0), atol=1e-12)
+    np.testing.assert_allclose(plan_v, np.maximum(ctl.u_prev[0] - (k + 1) * a * ctl.dt, 0.0), atol=1e-12)
     ctl.reset(x)
     assert ctl.accel == ctl.limits.a_max
 

@@ -8,14 +8,10 @@ import pytest
 from mpc_cases import ROBOT
 
 from sanav_mj.control.base import Observation
-from sanav_mj.control.ocp import (
-    IpoptBackend,
-    SolverSettings,
-    build_tracking_ocp,
-    make_backend,
-    shift_inputs,
-    shift_multipliers,
-)
+from sanav_mj.control.backend_ipopt import IpoptBackend
+from sanav_mj.control.backends import make_backend
+from sanav_mj.control.problem import build_tracking_ocp, shift_inputs, shift_multipliers
+from sanav_mj.control.solver import SolverSettings
 from sanav_mj.control.sa_mpc import SAMPC, MPCConfig, SafeAreaPenalty
 from sanav_mj.control.sqp import (
     SqpBackend,

@@ -166,15 +166,13 @@ def test_planner_config_of_the_mujoco_robot():
         assert getattr(cfg, name) == getattr(base, name), name
 
 
-def test_planner_config_fractions_are_capped_at_one(monkeypatch):
-    from functools import partial
-
-    from sanav_mj.control import sa_mpc
+def test_planner_config_fractions_are_capped_at_one():
+    from sanav_mj.control.config import MPCConfig
+    from sanav_mj.control.spec import ControllerSpec
     from sanav_mj.eval.episode import planner_config
 
     # an MPC allowed 10 m/s^2 on a 1 m/s^2 robot: 0.8 * 10 / 1 = 8 -> the robot's whole a_max
-    monkeypatch.setattr(sa_mpc, "MPCConfig", partial(sa_mpc.MPCConfig, a_max=10.0, dt=0.05))
-    cfg = planner_config(_robot())
+    cfg = planner_config(_robot(), ControllerSpec(sa_mpc=MPCConfig(a_max=10.0, dt=0.05)))
     assert cfg.accel_fraction == 1.0
     assert cfg.dt == 0.05
 
@@ -188,3 +186,17 @@ def test_planned_reference_respects_the_mpc_bounds(u_shape):
     v = np.asarray(ref.inputs, dtype=float)[:, 0]
     assert v.max() == pytest.approx(0.8 * lim.v_max, rel=1e-3)  # reaches the cap on the long legs
     assert np.abs(np.asarray(ref.inputs)[:, 1]).max() <= 0.8 * lim.w_max + 1e-9
+
+
+def test_the_controller_spec_reaches_the_controller_and_the_planner():
+    from sanav_mj.control.config import MPCConfig
+    from sanav_mj.control.spec import ControllerSpec
+
+    spec = ControllerSpec(sa_mpc=MPCConfig(v_max=0.5))
+    out = run_scenario("single_rect", seed=0, controller_spec=spec)
+    assert out.spec is spec and out.document["reason"] == "goal"
+    assert max(out.document["trace"]["v"]) <= 0.5 + 1e-12  # the controller's speed bound
+    v_ref = np.asarray(out.prepared.plan.reference.inputs)[:, 0]
+    assert v_ref.max() == pytest.approx(0.8 * 0.5, rel=1e-3)  # the planner's cap: 0.8 of that bound
+    with pytest.raises(ValueError, match="controller_spec: names controller 'sa-mpc' but controller='dwa'"):
+        run_scenario("single_rect", controller="dwa", controller_spec=spec)

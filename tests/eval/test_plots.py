@@ -4,6 +4,7 @@ and inconsistent input is a clear error."""
 from __future__ import annotations
 
 import struct
+from dataclasses import replace
 from pathlib import Path
 
 import mujoco
@@ -15,7 +16,7 @@ from sanav_mj.eval import plots
 from sanav_mj.eval.plots import plot_areas, plot_heatmap, plot_run, plot_success_bars, run_reference
 from sanav_mj.mapping.occupancy import OccupancyGrid
 from sanav_mj.mapping.quadtree import QuadtreeLeaves
-from sanav_mj.mapping.safe_areas import SafeAreas
+from sanav_mj.mapping.safe_areas import SafeAreaMap, SafeAreas
 from sanav_mj.planning.reference import Plan, Reference
 from sanav_mj.resources import robot_model_path
 from sanav_mj.scene import Obstacle, RobotParams, Scenario
@@ -65,7 +66,7 @@ def prep() -> Prepared:
     states = np.column_stack((4.0 * s, -0.8 * np.sin(np.pi * s), np.zeros(21)))
     ref = Reference(0.1, states, np.zeros((21, 2)), np.zeros(21, dtype=int))
     plan = Plan(True, "ok", np.array([1, 0, 2]), np.array([4.0, 0.0]), wp, wp, states[:, :2], ref)
-    return Prepared(sc, grid, leaves, areas, plan, {"total": 1.0})
+    return Prepared(sc, SafeAreaMap(grid, leaves, np.zeros((0, 4), np.int64), areas, 1, "paper"), plan, {"total": 1.0})
 
 
 def make_trace(n: int = 25) -> EpisodeTrace:
@@ -110,8 +111,8 @@ def test_plot_areas_dpi_scales_the_image(prep, tmp_path):
 
 
 def test_plot_areas_rejects_inconsistent_leaves(prep, tmp_path):
-    bad = Prepared(prep.scenario, prep.grid, QuadtreeLeaves(prep.leaves.boxes, np.ones(4, dtype=bool),
-                                                            prep.leaves.depth), prep.areas, prep.plan)
+    bad_leaves = QuadtreeLeaves(prep.leaves.boxes, np.ones(4, dtype=bool), prep.leaves.depth)
+    bad = replace(prep, map=replace(prep.map, leaves=bad_leaves))
     with pytest.raises(ValueError, match="leaves: boxes"):
         plot_areas(bad, tmp_path / "bad.png")
     assert not (tmp_path / "bad.png").exists()
@@ -120,7 +121,7 @@ def test_plot_areas_rejects_inconsistent_leaves(prep, tmp_path):
 def test_plot_areas_rejects_out_of_range_corridor(prep, tmp_path):
     p = prep.plan
     plan = Plan(True, "ok", np.array([0, 7]), p.goal, p.waypoints, p.path, p.smoothed, p.reference)
-    bad = Prepared(prep.scenario, prep.grid, prep.leaves, prep.areas, plan)
+    bad = replace(prep, plan=plan)
     with pytest.raises(ValueError, match="plan.corridor"):
         plot_areas(bad, tmp_path / "bad.png")
 
@@ -128,7 +129,7 @@ def test_plot_areas_rejects_out_of_range_corridor(prep, tmp_path):
 def test_plot_areas_without_a_plan(prep, tmp_path):
     empty = np.zeros((0, 2))
     plan = Plan(False, "no_path", np.zeros(0, dtype=int), np.array([4.0, 0.0]), empty, empty, empty, None)
-    p = Prepared(prep.scenario, prep.grid, prep.leaves, prep.areas, plan)
+    p = replace(prep, plan=plan)
     assert_png(plot_areas(p, tmp_path / "noplan.png"), (1500, 900))
 
 
@@ -335,3 +336,18 @@ def test_plot_heatmap_pdf_and_svg_and_no_partial_file(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         plot_heatmap(np.eye(2), "mass", [1, 2], "delay", [0, 1], "t", tmp_path / "cut.png")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["h.pdf", "h.svg"]
+
+
+def test_run_reference_of_the_penalty_mpc_uses_the_runs_spec(prep):
+    """The segment follows the settings the run had (its ControllerSpec), not the defaults."""
+    from dataclasses import replace as dc_replace
+
+    from sanav_mj.control.config import PenaltyConfig
+    from sanav_mj.control.spec import ControllerSpec
+
+    spec = ControllerSpec("mpc", penalty=PenaltyConfig(lookahead=1.0, reference_speed=0.5))
+    out = dc_replace(_as(outcome_of(prep, make_trace()), "mpc"), spec=spec)
+    ref = run_reference(out, [0])
+    assert "from 1 m ahead" in ref.label
+    s = np.minimum(1.0 + 0.5 * 0.1 * np.arange(21), 4.0)  # measured (0, 0), goal (4, 0)
+    np.testing.assert_allclose(ref.paths[0], np.column_stack((s, np.zeros(21))), atol=1e-12)
