@@ -1,0 +1,332 @@
+"""An occupancy grid that grows scan by scan, and the safe grid derived from it incrementally.
+
+The map lives in the world frame on the same cells as the known-map grid
+(:func:`sanav_mj.mapping.occupancy.grid_shape`: origin at the workspace's lower-left corner).
+Each cell holds a log-odds value ``L`` (0 = never observed), updated by every scan from the
+*measured* sensor pose (so pose noise acts on the map, as on a real robot):
+
+* every cell a beam crosses before its end gets ``l_free`` (at most once per scan);
+* the cell holding a return's end point gets ``l_occ`` (returns only: a beam with no return
+  within the maximum range clears its whole length and marks nothing occupied);
+* a cell that is both crossed and hit in one scan counts as hit; ``L`` is clamped to
+  ``[l_min, l_max]``.
+
+States: occupied where ``L >= occ_thresh``, free where ``L <= free_thresh``, unknown in
+between (so a cell hit once and crossed by one grazing beam afterwards is not free yet).
+Cells that straddle the workspace boundary are occupied from the start, as in the
+known-map grid.
+
+Safe grid: a cell is safe iff no *non-free* (occupied or unknown) cell lies within the
+inflation radius of it, measured square to square (the closed cell squares, like the
+known-map rasteriser measures a cell against an inflated obstacle). Every safe cell is
+therefore observed free, and unknown space is never safe. It is kept as a count, per cell,
+of the non-free cells within the radius; a scan changes the count only around the cells
+whose free / non-free status changed, so the update costs O(changed cells x kernel cells)
+and returns exactly the cells whose safe state flipped (input to
+:mod:`sanav_mj.mapping.incremental`).
+
+Beam traversal (:func:`traverse`) is exact and vectorised over all beams: each beam is
+stepped along its major axis one column (row) at a time; within one column a segment of
+slope <= 1 covers one or two cells, the ones holding the segment's entry and exit points.
+That is the set of cells whose interior the segment crosses (degenerate exact-corner
+passes aside), with no sort.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sanav_mj.mapping.occupancy import OccupancyGrid, grid_shape
+
+UNKNOWN, FREE, OCCUPIED = 0, 1, 2
+"""Cell states returned by :meth:`LiveGrid.states`."""
+
+_SIZE_TOL = 1e-6
+
+
+@dataclass(frozen=True)
+class LiveGridConfig:
+    """Log-odds occupancy update parameters (dimensionless log-odds).
+
+    Attributes:
+        l_free: increment for a cell crossed by a beam, < 0.
+        l_occ: increment for a cell holding a return, > 0.
+        l_min, l_max: clamping bounds, ``l_min < free_thresh < 0 < occ_thresh < l_max``.
+        free_thresh: a cell is free when ``L <= free_thresh``.
+        occ_thresh: a cell is occupied when ``L >= occ_thresh``.
+    """
+
+    l_free: float = -0.4
+    l_occ: float = 1.0
+    l_min: float = -2.0
+    l_max: float = 3.5
+    free_thresh: float = -0.35
+    occ_thresh: float = 0.5
+
+    def __post_init__(self) -> None:
+        vals = (self.l_free, self.l_occ, self.l_min, self.l_max, self.free_thresh, self.occ_thresh)
+        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals):
+            raise ValueError(f"LiveGridConfig fields must be finite numbers, got {vals}")
+        if not (self.l_free < 0 < self.l_occ):
+            raise ValueError(f"LiveGridConfig needs l_free < 0 < l_occ, got {self.l_free}, {self.l_occ}")
+        if not (self.l_min <= self.free_thresh < 0 < self.occ_thresh <= self.l_max):
+            raise ValueError("LiveGridConfig needs l_min <= free_thresh < 0 < occ_thresh <= l_max, got "
+                             f"{self.l_min}, {self.free_thresh}, {self.occ_thresh}, {self.l_max}")
+
+
+@dataclass(frozen=True)
+class MapUpdate:
+    """What one scan changed.
+
+    Attributes:
+        state_changed: (K,) int64 flat indices (``i * nx + j``) of cells whose state
+            (unknown / free / occupied) changed, each once.
+        safe_changed: (S,) int64 flat indices of cells whose safe state flipped, each once.
+    """
+
+    state_changed: np.ndarray
+    safe_changed: np.ndarray
+
+
+def inflation_offsets(inflation: float, resolution: float) -> np.ndarray:
+    """Cell offsets ``(di, dj)`` whose closed squares lie within ``inflation`` of the centre cell's.
+
+    The distance between the squares of cells offset by ``(di, dj)`` is
+    ``hypot(max(|di|-1, 0), max(|dj|-1, 0)) * resolution``; an offset is kept when it is
+    ``<= inflation`` (ties within 1e-9 m kept, the conservative side).
+
+    Returns:
+        (K, 2) int64, including ``(0, 0)``.
+    """
+    r = int(math.floor(inflation / resolution + 1e-9)) + 1
+    di, dj = np.mgrid[-r:r + 1, -r:r + 1]
+    gap = np.hypot(np.maximum(np.abs(di) - 1, 0), np.maximum(np.abs(dj) - 1, 0)) * resolution
+    keep = gap <= inflation + 1e-9
+    return np.stack([di[keep], dj[keep]], axis=1).astype(np.int64)
+
+
+def dilate_count(mask: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """For every cell, the number of ``mask`` cells at the given offsets from it (out of grid: 0).
+
+    Args:
+        mask: (ny, nx) bool.
+        offsets: (K, 2) int cell offsets (symmetric sets give the usual dilation count).
+
+    Returns:
+        (ny, nx) int32.
+    """
+    ny, nx = mask.shape
+    r = int(np.abs(offsets).max()) if len(offsets) else 0
+    pad = np.zeros((ny + 2 * r, nx + 2 * r), dtype=np.int32)
+    pad[r:r + ny, r:r + nx] = mask
+    out = np.zeros((ny, nx), dtype=np.int32)
+    for di, dj in offsets:
+        out += pad[r + di:r + di + ny, r + dj:r + dj + nx]
+    return out
+
+
+def traverse(u0: np.ndarray, v0: np.ndarray, u1: np.ndarray, v1: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cells crossed by segments, in cell coordinates (cell ``(i, j)`` is ``[j, j+1) x [i, i+1)``).
+
+    Args:
+        u0, v0, u1, v1: (B,) float start and end points, x (column) and y (row) in cell units.
+
+    Returns:
+        beam: (M,) int64 segment index of each crossed cell.
+        i, j: (M,) int64 row and column. A segment's cells come in order from its start,
+        each once; the start and end cells are included. Cells may lie outside any grid.
+    """
+    u0, v0, u1, v1 = (np.asarray(a, dtype=float) for a in (u0, v0, u1, v1))
+    xmajor = np.abs(u1 - u0) >= np.abs(v1 - v0)
+    # Work in (a, b) = (major, minor) coordinates.
+    a0 = np.where(xmajor, u0, v0)
+    b0 = np.where(xmajor, v0, u0)
+    a1 = np.where(xmajor, u1, v1)
+    b1 = np.where(xmajor, v1, u1)
+    c0 = np.floor(a0).astype(np.int64)
+    c1 = np.floor(a1).astype(np.int64)
+    step = np.where(c1 >= c0, 1, -1)
+    n = np.abs(c1 - c0) + 1
+    total = int(n.sum())
+    beam = np.repeat(np.arange(len(a0)), n)
+    k = np.arange(total) - np.repeat(np.cumsum(n) - n, n)
+    col = c0[beam] + step[beam] * k
+    da = a1 - a0
+    slope = np.where(da != 0, (b1 - b0) / np.where(da != 0, da, 1.0), 0.0)
+    lo = np.minimum(a0, a1)[beam]
+    hi = np.maximum(a0, a1)[beam]
+    # entry / exit of the segment in this column, in the beam's direction of travel
+    ea = np.clip(np.where(step[beam] > 0, col, col + 1).astype(float), lo, hi)
+    xa = np.clip(np.where(step[beam] > 0, col + 1, col).astype(float), lo, hi)
+    eb = np.floor(b0[beam] + (ea - a0[beam]) * slope[beam]).astype(np.int64)
+    xb = np.floor(b0[beam] + (xa - a0[beam]) * slope[beam]).astype(np.int64)
+    # the segment's own end points (the clip makes ea / xa exact there; keep their cells exact)
+    first = k == 0
+    last = k == n[beam] - 1
+    eb[first] = np.floor(b0[beam[first]]).astype(np.int64)
+    xb[last] = np.floor(b1[beam[last]]).astype(np.int64)
+    two = xb != eb
+    reps = 1 + two
+    beam2 = np.repeat(beam, reps)
+    col2 = np.repeat(col, reps)
+    minor = np.repeat(eb, reps)
+    second = np.zeros(len(minor), dtype=bool)
+    second[np.cumsum(reps)[two] - 1] = True
+    minor[second] = xb[two]
+    xm = np.repeat(xmajor[beam], reps)
+    i = np.where(xm, minor, col2)
+    j = np.where(xm, col2, minor)
+    return beam2, i, j
+
+
+class LiveGrid:
+    """The growing occupancy grid and its inflated safe grid.
+
+    Args:
+        bounds: (4,) [m] workspace xmin, ymin, xmax, ymax (the grid covers it, as the
+            known-map grid does).
+        resolution: [m] cell edge.
+        inflation: [m] robot footprint radius + margin, >= 0.
+        config: log-odds parameters.
+
+    Attributes:
+        log_odds: (ny, nx) float32.
+        blocked: (ny, nx) int32 number of non-free cells within the inflation radius.
+    """
+
+    def __init__(self, bounds, resolution: float, inflation: float,
+                 config: LiveGridConfig = LiveGridConfig()) -> None:
+        b = np.asarray(bounds, dtype=float)
+        ny, nx = grid_shape(b, resolution)
+        if not (math.isfinite(inflation) and inflation >= 0):
+            raise ValueError(f"inflation must be finite and >= 0 [m], got {inflation!r}")
+        self.bounds = b.copy()
+        self.resolution = float(resolution)
+        self.inflation = float(inflation)
+        self.config = config
+        self.origin = b[:2].copy()
+        self.shape = (ny, nx)
+        self.log_odds = np.zeros((ny, nx), dtype=np.float32)
+        h = self.resolution
+        if nx * h > (b[2] - b[0]) + _SIZE_TOL * h:
+            self.log_odds[:, -1] = config.l_max
+        if ny * h > (b[3] - b[1]) + _SIZE_TOL * h:
+            self.log_odds[-1, :] = config.l_max
+        self._offsets = inflation_offsets(self.inflation, h)
+        r = int(np.abs(self._offsets).max())
+        self._r = r
+        self._pw = nx + 2 * r  # padded width: neighbourhood updates need no bounds checks
+        self._pad = np.zeros((ny + 2 * r) * self._pw, dtype=np.int32)
+        self._koff = self._offsets[:, 0] * self._pw + self._offsets[:, 1]
+        nonfree = self.states() != FREE
+        self._pad.reshape(ny + 2 * r, self._pw)[r:r + ny, r:r + nx] = dilate_count(nonfree, self._offsets)
+        self._mark = np.zeros(ny * nx, dtype=np.int8)
+        self._delta = np.array([0.0, config.l_free, config.l_occ], dtype=np.float32)
+
+    @property
+    def blocked(self) -> np.ndarray:
+        """(ny, nx) int32 view: number of non-free cells within the inflation radius of each cell."""
+        ny, nx = self.shape
+        r = self._r
+        return self._pad.reshape(ny + 2 * r, self._pw)[r:r + ny, r:r + nx]
+
+    def states(self) -> np.ndarray:
+        """(ny, nx) int8 cell states: :data:`UNKNOWN`, :data:`FREE` or :data:`OCCUPIED`."""
+        return self._state(self.log_odds)
+
+    def _state(self, lo: np.ndarray) -> np.ndarray:
+        c = self.config
+        return np.where(lo >= c.occ_thresh, OCCUPIED, np.where(lo <= c.free_thresh, FREE, UNKNOWN)).astype(np.int8)
+
+    def safe(self) -> np.ndarray:
+        """(ny, nx) bool: observed free and no occupied or unknown cell within the inflation radius."""
+        return self.blocked == 0
+
+    def safe_grid(self) -> OccupancyGrid:
+        """The safe grid as an :class:`OccupancyGrid` (``occupied`` = not safe), for the quadtree."""
+        return OccupancyGrid(occupied=~self.safe(), resolution=self.resolution, origin=self.origin.copy(),
+                             inflation=self.inflation, bounds=self.bounds.copy())
+
+    def integrate(self, origin, heading: float, ranges, hit, angles) -> MapUpdate:
+        """Add one scan taken at a given sensor pose.
+
+        Args:
+            origin: (2,) [m] world x, y of the sensor (from the measured robot pose).
+            heading: [rad] world yaw of the sensor.
+            ranges: (B,) [m] measured ranges (for beams without a return: the maximum range).
+            hit: (B,) bool, True where the beam returned.
+            angles: (B,) [rad] beam directions relative to ``heading``.
+
+        Returns:
+            The cells whose state and whose safe state changed.
+        """
+        o = np.asarray(origin, dtype=float).reshape(2)
+        r = np.asarray(ranges, dtype=float)
+        hit = np.asarray(hit, dtype=bool)
+        a = heading + np.asarray(angles, dtype=float)
+        if not (r.shape == hit.shape == a.shape and r.ndim == 1):
+            raise ValueError(f"ranges, hit, angles must be (B,) arrays of one length, got {r.shape}, "
+                             f"{hit.shape}, {a.shape}")
+        ok = np.isfinite(r) & np.isfinite(a)
+        if not np.all(np.isfinite(o)):
+            return MapUpdate(np.zeros(0, np.int64), np.zeros(0, np.int64))
+        r, hit, a = r[ok], hit[ok], a[ok]
+        h = self.resolution
+        ny, nx = self.shape
+        u0 = (o[0] - self.origin[0]) / h
+        v0 = (o[1] - self.origin[1]) / h
+        u1 = u0 + r * np.cos(a) / h
+        v1 = v0 + r * np.sin(a) / h
+        beam, i, j = traverse(np.full(len(r), u0), np.full(len(r), v0), u1, v1)
+        inside = (i >= 0) & (i < ny) & (j >= 0) & (j < nx)
+        free = (i * nx + j)[inside]
+        ei = np.floor(v1[hit]).astype(np.int64)
+        ej = np.floor(u1[hit]).astype(np.int64)
+        ein = (ei >= 0) & (ei < ny) & (ej >= 0) & (ej < nx)
+        occ = (ei * nx + ej)[ein]
+        mark = self._mark
+        mark[free] = 1
+        mark[occ] = 2  # a cell hit in this scan counts as hit, not crossed
+        touched = np.concatenate([free, occ])
+        lo = self.log_odds.reshape(-1)
+        old = lo[touched]
+        c = self.config
+        new = np.clip(old + self._delta[mark[touched]], c.l_min, c.l_max)
+        mark[touched] = 0
+        lo[touched] = new  # duplicates write the same value: each cell is updated once
+        s_old = self._state(old)
+        s_new = self._state(new)
+        ch = s_old != s_new
+        changed = touched[ch]
+        # a cell listed twice (crossed by several beams) changed once: keep one occurrence
+        _, first = np.unique(changed, return_index=True)
+        keep = np.zeros(len(changed), dtype=bool)
+        keep[first] = True
+        state_changed = changed[keep]
+        was_free = s_old[ch][keep] == FREE
+        is_free = s_new[ch][keep] == FREE
+        flip = was_free != is_free
+        cells = state_changed[flip]
+        if not len(cells):
+            return MapUpdate(state_changed, np.zeros(0, np.int64))
+        delta = np.where(is_free[flip], -1, 1).astype(np.int64)
+        ci, cj = np.divmod(cells, nx)
+        centre = (ci + self._r) * self._pw + (cj + self._r)
+        idx = (centre[:, None] + self._koff[None, :]).ravel()
+        base = int(idx.min())
+        d = np.bincount(idx - base, weights=np.repeat(delta, len(self._koff)).astype(float)).astype(np.int32)
+        nz = np.flatnonzero(d)
+        pos = nz + base
+        new_count = self._pad[pos] + d[nz]
+        old_zero = self._pad[pos] == 0
+        self._pad[pos] = new_count
+        flipped = pos[old_zero != (new_count == 0)]
+        pr, pc = np.divmod(flipped, self._pw)
+        pr -= self._r
+        pc -= self._r
+        inside = (pr >= 0) & (pr < ny) & (pc >= 0) & (pc < nx)
+        return MapUpdate(state_changed, np.sort(pr[inside] * nx + pc[inside]))
