@@ -132,55 +132,51 @@ def traverse(u0: np.ndarray, v0: np.ndarray, u1: np.ndarray, v1: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cells crossed by segments, in cell coordinates (cell ``(i, j)`` is ``[j, j+1) x [i, i+1)``).
 
+    Each segment is stepped along its major axis: the minor coordinate at each boundary
+    between consecutive major-axis columns is ``base + k * inc`` (one multiply-add per
+    column); a column holds the cells of its entry and exit points (one, or two adjacent).
+
     Args:
         u0, v0, u1, v1: (B,) float start and end points, x (column) and y (row) in cell units.
 
     Returns:
         beam: (M,) int64 segment index of each crossed cell.
-        i, j: (M,) int64 row and column. A segment's cells come in order from its start,
-        each once; the start and end cells are included. Cells may lie outside any grid.
+        i, j: (M,) int64 row and column. Each segment's cells appear once each (grouped by
+        kind, not in travel order); its start and end cells are included. Cells may lie
+        outside any grid.
     """
     u0, v0, u1, v1 = (np.asarray(a, dtype=float) for a in (u0, v0, u1, v1))
     xmajor = np.abs(u1 - u0) >= np.abs(v1 - v0)
-    # Work in (a, b) = (major, minor) coordinates.
-    a0 = np.where(xmajor, u0, v0)
+    a0 = np.where(xmajor, u0, v0)  # major axis
     b0 = np.where(xmajor, v0, u0)
     a1 = np.where(xmajor, u1, v1)
     b1 = np.where(xmajor, v1, u1)
-    c0 = np.floor(a0).astype(np.int64)
-    c1 = np.floor(a1).astype(np.int64)
-    step = np.where(c1 >= c0, 1, -1)
-    n = np.abs(c1 - c0) + 1
+    c0 = np.floor(a0)
+    c1 = np.floor(a1)
+    step = np.where(c1 >= c0, 1.0, -1.0)
+    n = (np.abs(c1 - c0) + 1).astype(np.int64)
+    da = a1 - a0
+    slope = np.divide(b1 - b0, da, out=np.zeros_like(da), where=da != 0)
+    # minor coordinate at the far boundary of column k: b0 + (c0 + k*step + [step > 0] - a0) * slope
+    base = b0 + (c0 + (step > 0) - a0) * slope
+    inc = step * slope
+    start = np.cumsum(n) - n
     total = int(n.sum())
     beam = np.repeat(np.arange(len(a0)), n)
-    k = np.arange(total) - np.repeat(np.cumsum(n) - n, n)
-    col = c0[beam] + step[beam] * k
-    da = a1 - a0
-    slope = np.where(da != 0, (b1 - b0) / np.where(da != 0, da, 1.0), 0.0)
-    lo = np.minimum(a0, a1)[beam]
-    hi = np.maximum(a0, a1)[beam]
-    # entry / exit of the segment in this column, in the beam's direction of travel
-    ea = np.clip(np.where(step[beam] > 0, col, col + 1).astype(float), lo, hi)
-    xa = np.clip(np.where(step[beam] > 0, col + 1, col).astype(float), lo, hi)
-    eb = np.floor(b0[beam] + (ea - a0[beam]) * slope[beam]).astype(np.int64)
-    xb = np.floor(b0[beam] + (xa - a0[beam]) * slope[beam]).astype(np.int64)
-    # the segment's own end points (the clip makes ea / xa exact there; keep their cells exact)
-    first = k == 0
-    last = k == n[beam] - 1
-    eb[first] = np.floor(b0[beam[first]]).astype(np.int64)
-    xb[last] = np.floor(b1[beam[last]]).astype(np.int64)
-    two = xb != eb
-    reps = 1 + two
-    beam2 = np.repeat(beam, reps)
-    col2 = np.repeat(col, reps)
-    minor = np.repeat(eb, reps)
-    second = np.zeros(len(minor), dtype=bool)
-    second[np.cumsum(reps)[two] - 1] = True
-    minor[second] = xb[two]
-    xm = np.repeat(xmajor[beam], reps)
-    i = np.where(xm, minor, col2)
-    j = np.where(xm, col2, minor)
-    return beam2, i, j
+    k = np.arange(total, dtype=float) - np.repeat(start.astype(float), n)
+    exit_ = np.floor(np.repeat(base, n) + k * np.repeat(inc, n))
+    last = start + n - 1
+    exit_[last] = np.floor(b1)  # the last column ends at the segment's end point
+    entry = np.empty_like(exit_)
+    entry[1:] = exit_[:-1]
+    entry[start] = np.floor(b0)
+    col = np.repeat(c0, n) + k * np.repeat(step, n)
+    two = entry != exit_
+    beam = np.concatenate([beam, beam[two]])
+    col = np.concatenate([col, col[two]]).astype(np.int64)
+    minor = np.concatenate([entry, exit_[two]]).astype(np.int64)
+    xm = xmajor[beam]
+    return beam, np.where(xm, minor, col), np.where(xm, col, minor)
 
 
 class LiveGrid:
@@ -317,14 +313,11 @@ class LiveGrid:
         ci, cj = np.divmod(cells, nx)
         centre = (ci + self._r) * self._pw + (cj + self._r)
         idx = (centre[:, None] + self._koff[None, :]).ravel()
-        base = int(idx.min())
-        d = np.bincount(idx - base, weights=np.repeat(delta, len(self._koff)).astype(float)).astype(np.int32)
-        nz = np.flatnonzero(d)
-        pos = nz + base
-        new_count = self._pad[pos] + d[nz]
-        old_zero = self._pad[pos] == 0
-        self._pad[pos] = new_count
-        flipped = pos[old_zero != (new_count == 0)]
+        pad = self._pad
+        was_zero = pad[idx] == 0
+        np.add.at(pad, idx, np.repeat(delta.astype(np.int32), len(self._koff)))
+        now_zero = pad[idx] == 0
+        flipped = np.unique(idx[was_zero != now_zero])
         pr, pc = np.divmod(flipped, self._pw)
         pr -= self._r
         pc -= self._r

@@ -51,8 +51,6 @@ def test_traverse_matches_reference_on_random_segments():
         got = list(zip(i[beam == b].tolist(), j[beam == b].tolist()))
         assert len(got) == len(set(got)), b
         assert set(got) == _crossed_reference(u0[b], v0[b], u1[b], v1[b]), b
-        assert got[0] == (math.floor(v0[b]), math.floor(u0[b]))
-        assert got[-1] == (math.floor(v1[b]), math.floor(u1[b]))
 
 
 def test_inflation_offsets_square_to_square_distance():
