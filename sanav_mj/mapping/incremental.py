@@ -12,7 +12,6 @@ State kept between updates:
 * a count pyramid of occupied cells over aligned blocks up to tile size (updated by
   ``+-1`` along each changed cell's ancestors);
 * the merged safe rectangles, stored in slots (``boxes[slot]`` in cells, ``alive[slot]``);
-* a label grid: for each free cell, the slot of the rectangle covering it (-1 otherwise);
 * the graph edges as slot pairs.
 
 Update for a set of changed cells:
@@ -25,9 +24,9 @@ Update for a set of changed cells:
    all dirty tiles at once);
 4. pieces and new leaves are merged with :func:`sanav_mj.mapping.safe_areas.merge_rects`
    (the paper's full-edge merge) and take the freed slots;
-5. edges of removed rectangles are dropped; the new rectangles' neighbours are read from the
-   label grid along the one-cell strips just outside their four sides (a shared boundary
-   segment of positive length, never a corner only), which gives exactly the touching pairs.
+5. edges of removed rectangles are dropped; the new rectangles' neighbours are found among
+   the rectangles near them by matching sides on one grid line whose spans overlap by a
+   positive length (never a corner only): exactly the touching pairs.
 
 Work per update grows with the dirty tiles and the rectangles meeting them, not the grid.
 
@@ -72,7 +71,6 @@ class IncrementalSafeAreas:
         boxes: (cap, 4) int64 slot storage of cell boxes ``[i0, j0, i1, j1)``; valid where ``alive``.
         alive: (cap,) bool.
         edges: (E, 2) int64 slot pairs ``a < b`` of touching rectangles.
-        label: (ny, nx) int32 slot covering each cell, -1 for occupied cells.
     """
 
     def __init__(self, grid: OccupancyGrid, min_cell: int = 1, tile: int = 32) -> None:
@@ -95,7 +93,6 @@ class IncrementalSafeAreas:
             p = self._levels[-1]
             self._levels.append(p[0::2, 0::2] + p[1::2, 0::2] + p[0::2, 1::2] + p[1::2, 1::2])
         self.occupied = occ.copy()
-        self.label = np.full((ny, nx), -1, dtype=np.int32)
         self.boxes = np.zeros((0, 4), dtype=np.int64)
         self.alive = np.zeros(0, dtype=bool)
         self.edges = np.zeros((0, 2), dtype=np.int64)
@@ -257,9 +254,6 @@ class IncrementalSafeAreas:
         new = merge_rects(local) if len(local) else local.reshape(0, 4)
         # free the removed slots and their edges
         if len(removed):
-            lab = self.label
-            for i0, j0, i1, j1 in self.boxes[removed].tolist():
-                lab[i0:i1, j0:j1] = -1
             self.alive[removed] = False
             dead = np.zeros(len(self.alive), dtype=bool)
             dead[removed] = True
@@ -269,9 +263,6 @@ class IncrementalSafeAreas:
         slots = self._take_slots(len(new))
         self.boxes[slots] = new
         self.alive[slots] = True
-        lab = self.label
-        for s, (i0, j0, i1, j1) in zip(slots.tolist(), new.tolist()):
-            lab[i0:i1, j0:j1] = s
         self._link(slots, new)
 
     def _take_slots(self, n: int) -> np.ndarray:
@@ -295,30 +286,47 @@ class IncrementalSafeAreas:
         """Add the edges between the new rectangles and every rectangle they touch."""
         if not len(slots):
             return
-        ny, nx = self.shape
-        i0, j0, i1, j1 = boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3]
-        hgt, wid = i1 - i0, j1 - j0
-        owner, cells = [], []
-        # left (j0 - 1) and right (j1) strips: rows i0 .. i1-1; bottom (i0 - 1) / top (i1): cols j0 .. j1-1
-        for fixed, valid, span0, span_n, along_rows in (
-            (j0 - 1, j0 > 0, i0, hgt, True),
-            (j1, j1 < nx, i0, hgt, True),
-            (i0 - 1, i0 > 0, j0, wid, False),
-            (i1, i1 < ny, j0, wid, False),
+        # candidates: alive rectangles meeting the new ones' bounding box grown by one cell
+        alive = np.flatnonzero(self.alive)
+        cb = self.boxes[alive]
+        near = ((cb[:, 0] <= boxes[:, 2].max()) & (cb[:, 2] >= boxes[:, 0].min())
+                & (cb[:, 1] <= boxes[:, 3].max()) & (cb[:, 3] >= boxes[:, 1].min()))
+        cand, cb = alive[near], cb[near]
+        base = max(self.shape) + 2
+        a_parts, b_parts = [], []
+        # (far side of a, span of a) against (near side of b, span of b), both orientations
+        for far, a0, a1, near_, b0, b1 in (
+            (3, 0, 2, 1, 0, 2),  # a's right = b's left (rows overlap)
+            (1, 0, 2, 3, 0, 2),  # a's left = b's right
+            (2, 1, 3, 0, 1, 3),  # a's top = b's bottom (columns overlap)
+            (0, 1, 3, 2, 1, 3),  # a's bottom = b's top
         ):
-            n = np.where(valid, span_n, 0)
-            k = np.repeat(np.arange(len(slots)), n)
-            r = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
-            var = span0[k] + r
-            flat = var * nx + fixed[k] if along_rows else fixed[k] * nx + var
-            owner.append(slots[k])
-            cells.append(flat)
-        owner = np.concatenate(owner)
-        nb = self.label.reshape(-1)[np.concatenate(cells)].astype(np.int64)
-        ok = nb >= 0
-        a, b = owner[ok], nb[ok]
-        pairs = np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
+            ia, ib = _touching(boxes[:, far], boxes[:, a0], boxes[:, a1], cb[:, near_], cb[:, b0], cb[:, b1], base)
+            a_parts.append(slots[ia])
+            b_parts.append(cand[ib])
+        a = np.concatenate(a_parts)
+        b = np.concatenate(b_parts)
         cap = len(self.alive)
-        key = np.unique(pairs[:, 0] * cap + pairs[:, 1])
-        # a pair between two new rectangles is found from both sides; unique() keeps one
+        # a pair of two new rectangles is found from both sides; unique() keeps one
+        key = np.unique(np.minimum(a, b) * cap + np.maximum(a, b))
         self.edges = np.concatenate([self.edges, np.stack([key // cap, key % cap], axis=1)])
+
+
+def _touching(a_far, a_s0, a_s1, b_near, b_s0, b_s1, base: int) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (a, b) with ``a_far == b_near`` and spans ``[s0, s1)`` overlapping by > 0.
+
+    The b sides on one line belong to disjoint rectangles, so their spans are disjoint and,
+    sorted by start, also sorted by end: each a's partners are one contiguous run, found by
+    two binary searches.
+    """
+    key = b_near * base + b_s0
+    order = np.argsort(key)
+    start = key[order]
+    end = start + (b_s1 - b_s0)[order]
+    q = a_far * base + a_s0
+    lo = np.searchsorted(end, q, side="right")
+    hi = np.searchsorted(start, q + (a_s1 - a_s0), side="left")
+    n = np.maximum(hi - lo, 0)
+    ia = np.repeat(np.arange(len(q)), n)
+    pos = np.repeat(lo - (np.cumsum(n) - n), n) + np.arange(int(n.sum()))
+    return ia, order[pos]
