@@ -1,6 +1,7 @@
 """A 2-D scanning lidar on the robot, declared in its MJCF and cast with ``mujoco.mj_multiRay``.
 
-The sensor is the ``lidar`` site of ``models/diff_drive.xml`` and five ``<custom><numeric>``
+The sensor is the ``lidar_2d`` site of ``models/diff_drive.xml`` (on the deck, scan plane
+0.28 m above the floor; the ``lidar`` site 0.1 m up is the DQN's ray origin) and five ``<custom><numeric>``
 fields of the robot file (read by name, see :func:`lidar_config`):
 
     lidar_fov    [deg]  angular field of view, centred on the site's heading
@@ -9,7 +10,9 @@ fields of the robot file (read by name, see :func:`lidar_config`):
     lidar_rate   [Hz]   scans per second
     lidar_noise  [m]    standard deviation of the Gaussian range noise of a return
 
-The fan is horizontal whatever the robot's tilt: beam ``k`` points at world yaw
+Only obstacles that cross the scan plane are seen, and only their cross-section in that
+plane (e.g. a capsule's rounded end below the plane is narrower there). The fan is
+horizontal whatever the robot's tilt: beam ``k`` points at world yaw
 ``heading + angles[k]`` with zero vertical component, where ``heading`` is the site's x axis
 projected on the floor. The floor is a horizontal plane below the site, so a horizontal ray
 cannot meet it; in addition, any ray whose first hit is not a scenario obstacle (the floor,
@@ -31,7 +34,7 @@ import numpy as np
 from sanav_mj.scene import ROBOT_BASE, Obstacle
 
 #: Name of the sensor's site in the robot model.
-LIDAR_SITE = "lidar"
+LIDAR_SITE = "lidar_2d"
 #: Names of the custom numerics holding the sensor's parameters (one value each).
 LIDAR_FIELDS = ("lidar_fov", "lidar_beams", "lidar_range", "lidar_rate", "lidar_noise")
 
@@ -88,10 +91,10 @@ class LidarConfig:
 
 
 def lidar_config(model: mujoco.MjModel) -> LidarConfig:
-    """The lidar parameters declared in a compiled model (site ``lidar`` + custom numerics).
+    """The lidar parameters declared in a compiled model (site ``lidar_2d`` + custom numerics).
 
     Args:
-        model: a model including ``models/diff_drive.xml`` (or any robot with a ``lidar``
+        model: a model including ``models/diff_drive.xml`` (or any robot with a ``lidar_2d``
             site on its base body and the numerics :data:`LIDAR_FIELDS`).
 
     Returns:
@@ -146,10 +149,10 @@ class LidarScan:
 
 
 class Lidar:
-    """Casts the configured fan from the ``lidar`` site of a simulated model.
+    """Casts the configured fan from the ``lidar_2d`` site of a simulated model.
 
     Args:
-        model: the simulated MuJoCo model (it must contain the site ``lidar``).
+        model: the simulated MuJoCo model (it must contain the site ``lidar_2d``).
         obstacles: the scenario's obstacles (``Scenario.obstacles``): only these are seen.
         config: the sensor parameters (usually :func:`lidar_config` of the model).
     """

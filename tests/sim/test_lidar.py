@@ -77,17 +77,23 @@ def test_config_read_from_robot_model(write_scenario):
     assert cfg.beams == 541
     assert cfg.fov == pytest.approx(math.radians(270.0), abs=1e-15)
     assert (cfg.max_range, cfg.rate, cfg.noise_std) == (10.0, 20.0, 0.02)
-    assert cfg.offset == (0.0, 0.0)
+    assert cfg.offset == (0.12, 0.0)
     ang = cfg.angles
     assert ang[0] == pytest.approx(-0.75 * math.pi, abs=1e-15)
     assert ang[-1] == pytest.approx(0.75 * math.pi, abs=1e-12)
     assert np.allclose(np.diff(ang), math.radians(0.5), atol=1e-14)
 
 
-@pytest.mark.parametrize("group", [0, 1])
-def test_exact_ranges_box_and_cylinder(write_scenario, group):
-    """Noise-free returns equal the analytic distances; group 1 = the robot's own group (recast path)."""
-    sc, model, data = _setup(write_scenario, group=group)
+DECOR = '<geom name="decor" type="box" pos="1.5 0 0.3" size="0.05 3 0.3" contype="0" conaffinity="0"/>'
+
+
+@pytest.mark.parametrize("group,decor", [(0, False), (1, False), (0, True)])
+def test_exact_ranges_box_and_cylinder(write_scenario, group, decor):
+    """Noise-free returns equal the analytic distances; group 1 = the robot's own group; a
+    decoration (not an obstacle) in front of the box is seen by mj_multiRay and must be
+    looked through (the recast path)."""
+    world = WORLD.format(g=group) + ("\n" + DECOR if decor else "")
+    sc, model, data = _setup(write_scenario, group=group, world=world)
     cfg = LidarConfig(fov=2 * math.pi, beams=720, max_range=10.0, rate=20.0, noise_std=0.0)
     lidar = Lidar(model, sc.obstacles, cfg)
     ranges, origin, heading = lidar.true_ranges(data)
@@ -95,6 +101,12 @@ def test_exact_ranges_box_and_cylinder(write_scenario, group):
     expect = _analytic(origin[:2], heading, cfg.angles, cfg.max_range)
     hit = np.isfinite(expect)
     assert 100 < hit.sum() < 720  # both obstacles are seen, most beams are not blocked
+    if decor:
+        assert "decor" not in {o.name for o in sc.obstacles}
+        gid = np.full(720, -1, dtype=np.int32)
+        mujoco.mj_multiRay(model, data, origin, lidar._vec.ravel(), lidar._groups, 1,
+                           model.body("base").id, gid, np.zeros(720), None, 720, 10.0)
+        assert np.count_nonzero(gid == model.geom("decor").id) > 20
     assert np.array_equal(np.isfinite(ranges), hit)
     # mj_ray works in double precision on coordinates of order 10 m
     assert np.max(np.abs(ranges[hit] - expect[hit])) < 1e-9
@@ -139,10 +151,10 @@ def test_max_range_cuts_returns(write_scenario):
     sc, model, data = _setup(write_scenario, pose=(0.0, 0.0, 0.0))
     cfg = LidarConfig(fov=math.radians(10), beams=11, max_range=2.0, noise_std=0.0)
     scan = Lidar(model, sc.obstacles, cfg).scan(data, np.random.default_rng(0))
-    assert not scan.hit.any()  # the box face is 2.5 m ahead
+    assert not scan.hit.any()  # the box face is 2.38 m ahead of the sensor
     cfg = LidarConfig(fov=math.radians(10), beams=11, max_range=3.0, noise_std=0.0)
     scan = Lidar(model, sc.obstacles, cfg).scan(data, np.random.default_rng(0))
-    assert scan.hit[5] and scan.ranges[5] == pytest.approx(2.5, abs=1e-9)
+    assert scan.hit[5] and scan.ranges[5] == pytest.approx(2.5 - 0.12, abs=1e-9)  # sensor 0.12 m ahead
 
 
 def test_noise_is_seeded_and_has_the_declared_std(write_scenario):
