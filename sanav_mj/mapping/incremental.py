@@ -113,17 +113,33 @@ class IncrementalSafeAreas:
         Returns:
             Number of dirty tiles that were recomputed (0: nothing changed).
         """
-        ny, nx = self.shape
         occ = np.asarray(occupied)
         if occ.shape != self.shape or occ.dtype != bool:
             raise ValueError(f"occupied must be a {self.shape} bool array, got {occ.dtype} {occ.shape}")
-        cells = np.unique(np.asarray(changed, dtype=np.int64).reshape(-1))
-        if cells.size and (cells[0] < 0 or cells[-1] >= ny * nx):
-            raise ValueError(f"changed cells must be flat indices in [0, {ny * nx}), got {cells[0]}..{cells[-1]}")
-        new = occ.reshape(-1)[cells]
+        cells = self._check_cells(changed)
+        return self.update_cells(cells, occ.reshape(-1)[cells])
+
+    def update_cells(self, cells, values) -> int:
+        """As :meth:`update`, given the new values of the listed cells only.
+
+        Args:
+            cells: (K,) int flat indices ``i * nx + j``.
+            values: (K,) bool new occupancy of those cells (for a duplicated cell, all its
+                entries must agree).
+
+        Returns:
+            Number of dirty tiles that were recomputed (0: nothing changed).
+        """
+        cells = self._check_cells(cells)
+        new = np.asarray(values, dtype=bool).reshape(-1)
+        if new.shape != cells.shape:
+            raise ValueError(f"values must have one entry per cell ({cells.size}), got {new.size}")
+        ny, nx = self.shape
         mine = self.occupied.reshape(-1)
         diff = new != mine[cells]
         cells, new = cells[diff], new[diff]
+        cells, first = np.unique(cells, return_index=True)
+        new = new[first]
         if not cells.size:
             return 0
         mine[cells] = new
@@ -134,6 +150,16 @@ class IncrementalSafeAreas:
         tiles = np.unique((i >> self._lt) * self._ntx + (j >> self._lt))
         self._rebuild_tiles(tiles, self._slots_meeting(tiles))
         return int(tiles.size)
+
+    def _check_cells(self, cells) -> np.ndarray:
+        ny, nx = self.shape
+        c = np.asarray(cells).reshape(-1)
+        if c.size and not np.issubdtype(c.dtype, np.integer):
+            raise ValueError(f"changed cells must be integer flat indices, got dtype {c.dtype}")
+        c = c.astype(np.int64, copy=False)
+        if c.size and (c.min() < 0 or c.max() >= ny * nx):
+            raise ValueError(f"changed cells must be flat indices in [0, {ny * nx}), got {c.min()}..{c.max()}")
+        return c
 
     def safe_areas(self) -> tuple[np.ndarray, SafeAreas]:
         """The current rectangles and graph in compact form.

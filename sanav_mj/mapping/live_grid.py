@@ -54,14 +54,16 @@ class LiveGridConfig:
     Attributes:
         l_free: increment for a cell crossed by a beam, < 0.
         l_occ: increment for a cell holding a return, > 0.
-        l_min, l_max: clamping bounds, ``l_min < free_thresh < 0 < occ_thresh < l_max``.
+        l_min, l_max: clamping bounds, ``l_min < free_thresh < 0 < occ_thresh < l_max``, and
+            ``l_min + l_occ > free_thresh``: a single return makes any cell non-free (so
+            unsafe) at once, however often it was seen free before (safety first).
         free_thresh: a cell is free when ``L <= free_thresh``.
         occ_thresh: a cell is occupied when ``L >= occ_thresh``.
     """
 
     l_free: float = -0.4
     l_occ: float = 1.0
-    l_min: float = -2.0
+    l_min: float = -1.0
     l_max: float = 3.5
     free_thresh: float = -0.35
     occ_thresh: float = 0.5
@@ -75,6 +77,9 @@ class LiveGridConfig:
         if not (self.l_min <= self.free_thresh < 0 < self.occ_thresh <= self.l_max):
             raise ValueError("LiveGridConfig needs l_min <= free_thresh < 0 < occ_thresh <= l_max, got "
                              f"{self.l_min}, {self.free_thresh}, {self.occ_thresh}, {self.l_max}")
+        if not self.l_min + self.l_occ > self.free_thresh:
+            raise ValueError("LiveGridConfig needs l_min + l_occ > free_thresh (one return makes a cell non-free), "
+                             f"got {self.l_min} + {self.l_occ} <= {self.free_thresh}")
 
 
 @dataclass(frozen=True)
@@ -241,6 +246,11 @@ class LiveGrid:
     def safe(self) -> np.ndarray:
         """(ny, nx) bool: observed free and no occupied or unknown cell within the inflation radius."""
         return self.blocked == 0
+
+    def safe_at(self, cells) -> np.ndarray:
+        """(K,) bool safe state of the cells with flat indices ``cells`` (``i * nx + j``)."""
+        i, j = np.divmod(np.asarray(cells, dtype=np.int64), self.shape[1])
+        return self._pad[(i + self._r) * self._pw + (j + self._r)] == 0
 
     def safe_grid(self) -> OccupancyGrid:
         """The safe grid as an :class:`OccupancyGrid` (``occupied`` = not safe), for the quadtree."""

@@ -109,6 +109,18 @@ def test_hit_needs_several_free_passes_and_unknown_between():
     assert passes == math.ceil((c.l_occ - c.free_thresh) / -c.l_free - 1e-9)
 
 
+def test_one_return_makes_a_well_seen_free_cell_unsafe():
+    g = LiveGrid((0, 0, 4, 4), 0.1, 0.0)
+    for _ in range(20):  # cell (5, 25) crossed 20 times: log-odds at the lower clamp
+        g.integrate((0.55, 0.55), 0.0, [3.0], [True], [0.0])
+    assert g.states()[5, 25] == FREE and g.log_odds[5, 25] == g.config.l_min
+    up = g.integrate((0.55, 0.55), 0.0, [2.0], [True], [0.0])  # one return in it
+    assert g.states()[5, 25] != FREE
+    assert 5 * 40 + 25 in up.state_changed.tolist()
+    with pytest.raises(ValueError, match="one return"):
+        LiveGridConfig(l_min=-2.0, l_occ=1.0)
+
+
 def _brute_safe(states, inflation, h):
     ny, nx = states.shape
     bad = np.argwhere(states != FREE)
