@@ -193,3 +193,42 @@ def test_config_validation():
         LidarConfig(fov=7.0)
     with pytest.raises(ValueError, match="noise_std"):
         LidarConfig(noise_std=-0.1)
+
+
+def _cross_section_distance(model, ob, z, p):
+    """Signed 2-D distance from point p to obstacle ob's cross-section at height z."""
+    g = ob.geom_id
+    if ob.kind == "box":
+        c, s = math.cos(ob.yaw), math.sin(ob.yaw)
+        d = p - ob.center
+        q = np.abs([c * d[0] + s * d[1], -s * d[0] + c * d[1]]) - ob.half_size
+        return float(np.linalg.norm(np.maximum(q, 0)) + min(q.max(), 0.0))
+    r = float(model.geom_size[g][0])
+    if ob.kind == "capsule":  # rounded ends: narrower below / above the straight part
+        zc, half = float(model.geom_pos[g][2]), float(model.geom_size[g][1])
+        dz = max(abs(z - zc) - half, 0.0)
+        r = math.sqrt(max(r * r - dz * dz, 0.0))
+    return float(np.linalg.norm(p - ob.center) - r)
+
+
+@pytest.mark.parametrize("name", ["single_rect", "double_rect", "u_shape", "v_shape", "complex"])
+def test_builtin_scenarios_returns_lie_on_obstacle_sections(name):
+    """From the start pose of each built-in scenario, every return lies on the cross-section
+    of an obstacle at the scan height (boxes at any yaw, cylinders, capsules: a capsule's
+    rounded end is narrower where it crosses the plane)."""
+    sc = load_scenario(name)
+    model = sc.model
+    data = mujoco.MjData(model)
+    data.qpos[:] = robot_qpos(model, sc.start)
+    mujoco.mj_forward(model, data)
+    cfg = lidar_config(model)
+    lidar = Lidar(model, sc.obstacles, LidarConfig(cfg.fov, cfg.beams, cfg.max_range, cfg.rate, 0.0, cfg.offset))
+    ranges, origin, heading = lidar.true_ranges(data)
+    assert origin[2] == pytest.approx(0.28, abs=1e-3)  # the scan plane, from the robot file
+    hit = np.isfinite(ranges)
+    assert hit.any()
+    a = heading + cfg.angles[hit]
+    pts = origin[:2] + ranges[hit, None] * np.stack([np.cos(a), np.sin(a)], axis=1)
+    for p in pts:
+        d = min(_cross_section_distance(model, ob, origin[2], p) for ob in sc.obstacles)
+        assert abs(d) < 1e-9
