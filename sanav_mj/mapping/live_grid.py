@@ -59,6 +59,10 @@ class LiveGridConfig:
             unsafe) at once, however often it was seen free before (safety first).
         free_thresh: a cell is free when ``L <= free_thresh``.
         occ_thresh: a cell is occupied when ``L >= occ_thresh``.
+        hit_floor: a cell that has held a return never drops below this log-odds again
+            (default 0: it may fade to unknown but never becomes free, so beams grazing a
+            wall between two returns cannot clear the wall's cells; static worlds); None:
+            plain clamping at ``l_min``.
     """
 
     l_free: float = -0.4
@@ -67,8 +71,13 @@ class LiveGridConfig:
     l_max: float = 3.5
     free_thresh: float = -0.35
     occ_thresh: float = 0.5
+    hit_floor: float | None = 0.0
 
     def __post_init__(self) -> None:
+        if self.hit_floor is not None and not (isinstance(self.hit_floor, (int, float))
+                                               and self.free_thresh < self.hit_floor <= self.l_max):
+            raise ValueError(f"LiveGridConfig.hit_floor must be None or in (free_thresh, l_max] = "
+                             f"({self.free_thresh}, {self.l_max}], got {self.hit_floor!r}")
         vals = (self.l_free, self.l_occ, self.l_min, self.l_max, self.free_thresh, self.occ_thresh)
         if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals):
             raise ValueError(f"LiveGridConfig fields must be finite numbers, got {vals}")
@@ -184,6 +193,73 @@ def traverse(u0: np.ndarray, v0: np.ndarray, u1: np.ndarray, v1: np.ndarray
     return beam, np.where(xm, minor, col), np.where(xm, col, minor)
 
 
+def crossed_cells(u0, v0, u1, v1, ny: int, nx: int) -> np.ndarray:
+    """Flat indices ``i * nx + j`` of the cells of an (ny, nx) grid crossed by segments.
+
+    The same cells as :func:`traverse` keeps inside the grid, faster: each segment is first
+    clipped to the grid (Liang-Barsky), so no work is spent outside it, and the flat index is
+    formed directly (major-axis stride plus minor-axis stride).
+
+    Args:
+        u0, v0, u1, v1: (B,) float segment end points in cell units (x = column, y = row).
+        ny, nx: grid shape.
+
+    Returns:
+        (M,) int64 flat indices; a cell crossed by several segments appears once per segment.
+    """
+    u0, v0, u1, v1 = (np.asarray(a, dtype=float) for a in (u0, v0, u1, v1))
+    du, dv = u1 - u0, v1 - v0
+    t0 = np.zeros(len(u0))
+    t1 = np.ones(len(u0))
+    # clip to [eps, n - eps] (eps = 1e-9 cell): floor() of the clipped points, rounding
+    # included, then stays inside the grid
+    eps = 1e-9
+    for p, q, hi in ((du, u0, nx - eps), (dv, v0, ny - eps)):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ta = (eps - q) / p
+            tb = (hi - q) / p
+        inside = (q >= eps) & (q <= hi)
+        lo_t = np.where(p > 0, ta, np.where(p < 0, tb, np.where(inside, -np.inf, np.inf)))
+        hi_t = np.where(p > 0, tb, np.where(p < 0, ta, np.where(inside, np.inf, -np.inf)))
+        t0 = np.maximum(t0, lo_t)
+        t1 = np.minimum(t1, hi_t)
+    keep = t1 >= t0
+    if not keep.all():
+        u0, v0, du, dv, t0, t1 = u0[keep], v0[keep], du[keep], dv[keep], t0[keep], t1[keep]
+    cu0, cv0 = u0 + t0 * du, v0 + t0 * dv
+    cu1, cv1 = u0 + t1 * du, v0 + t1 * dv
+    xmajor = np.abs(du) >= np.abs(dv)
+    a0 = np.where(xmajor, cu0, cv0)
+    b0 = np.where(xmajor, cv0, cu0)
+    a1 = np.where(xmajor, cu1, cv1)
+    b1 = np.where(xmajor, cv1, cu1)
+    c0, c1 = np.floor(a0), np.floor(a1)
+    step = np.where(c1 >= c0, 1.0, -1.0)
+    n = (np.abs(c1 - c0) + 1).astype(np.int64)
+    da = a1 - a0
+    slope = np.divide(b1 - b0, da, out=np.zeros_like(da), where=da != 0)
+    base = b0 + (c0 + (step > 0) - a0) * slope
+    major_stride = np.where(xmajor, 1.0, float(nx))
+    minor_stride = np.where(xmajor, float(nx), 1.0)
+    start = np.cumsum(n) - n
+    total = int(n.sum())
+    k = np.arange(total, dtype=float) - np.repeat(start.astype(float), n)
+    exit_ = np.floor(np.repeat(base, n) + k * np.repeat(step * slope, n))
+    # between its (clipped) ends the segment's minor coordinate stays between theirs: clip
+    # away rounding at the grid edge (a minor cell of -1 for a segment along the border)
+    fb0, fb1 = np.floor(b0), np.floor(b1)
+    np.clip(exit_, np.repeat(np.minimum(fb0, fb1), n), np.repeat(np.maximum(fb0, fb1), n), out=exit_)
+    exit_[start + n - 1] = fb1
+    entry = np.empty_like(exit_)
+    entry[1:] = exit_[:-1]
+    entry[start] = fb0
+    ms = np.repeat(minor_stride, n)
+    major = np.repeat(c0 * major_stride, n) + k * np.repeat(step * major_stride, n)
+    flat = major + entry * ms
+    two = entry != exit_
+    return np.concatenate([flat, major[two] + exit_[two] * ms[two]]).astype(np.int64)
+
+
 class LiveGrid:
     """The growing occupancy grid and its inflated safe grid.
 
@@ -223,9 +299,13 @@ class LiveGrid:
         self._pw = nx + 2 * r  # padded width: neighbourhood updates need no bounds checks
         self._pad = np.zeros((ny + 2 * r) * self._pw, dtype=np.int32)
         self._koff = self._offsets[:, 0] * self._pw + self._offsets[:, 1]
+        # the kernel as row runs (di, half-width): the square-to-square distance grows with |dj|
+        self._rows = [(int(di), int(np.abs(self._offsets[self._offsets[:, 0] == di, 1]).max()))
+                      for di in np.unique(self._offsets[:, 0])]
         nonfree = self.states() != FREE
         self._pad.reshape(ny + 2 * r, self._pw)[r:r + ny, r:r + nx] = dilate_count(nonfree, self._offsets)
         self._mark = np.zeros(ny * nx, dtype=np.int8)
+        self._floor = np.full(ny * nx, config.l_min, dtype=np.float32)  # per-cell lower clamp
         self._delta = np.array([0.0, config.l_free, config.l_occ], dtype=np.float32)
 
     @property
@@ -246,6 +326,36 @@ class LiveGrid:
     def safe(self) -> np.ndarray:
         """(ny, nx) bool: observed free and no occupied or unknown cell within the inflation radius."""
         return self.blocked == 0
+
+    def _spread_sparse(self, ci, cj, delta) -> np.ndarray:
+        """Add ``delta`` of each changed cell to the counts around it, cell by kernel offset.
+
+        Returns the padded flat indices whose count went from zero to non-zero or back."""
+        centre = (ci + self._r) * self._pw + (cj + self._r)
+        idx = (centre[:, None] + self._koff[None, :]).ravel()
+        pad = self._pad
+        was_zero = pad[idx] == 0
+        np.add.at(pad, idx, np.repeat(delta, len(self._koff)))
+        now_zero = pad[idx] == 0
+        return np.unique(idx[was_zero != now_zero])
+
+    def _spread_dense(self, ci, cj, delta, h0, h1, w0, w1) -> np.ndarray:
+        """As :meth:`_spread_sparse`, over the changed cells' bounding window at once: the
+        kernel is a stack of row runs, each a difference of row-wise prefix sums."""
+        r = self._r
+        hh, ww = h1 - h0 + 2 * r, w1 - w0 + 2 * r  # output window: the bounding box grown by r
+        dz = np.zeros((hh + 2 * r, ww + 2 * r + 1), dtype=np.int32)
+        np.add.at(dz, (ci - h0 + 2 * r, cj - w0 + 2 * r + 1), delta)  # column 0 stays 0
+        csum = np.cumsum(dz, axis=1, dtype=np.int32)
+        out = np.zeros((hh, ww), dtype=np.int32)
+        for di, w in self._rows:
+            rows = csum[r + di:r + di + hh]
+            out += rows[:, r + w + 1:r + w + 1 + ww] - rows[:, r - w:r - w + ww]
+        view = self._pad.reshape(-1, self._pw)[h0:h0 + hh, w0:w0 + ww]  # padded coords = grid + r
+        was_zero = view == 0
+        view += out
+        a, b = np.nonzero(was_zero != (view == 0))
+        return (a + h0) * self._pw + (b + w0)
 
     def safe_at(self, cells) -> np.ndarray:
         """(K,) bool safe state of the cells with flat indices ``cells`` (``i * nx + j``)."""
@@ -287,9 +397,7 @@ class LiveGrid:
         v0 = (o[1] - self.origin[1]) / h
         u1 = u0 + r * np.cos(a) / h
         v1 = v0 + r * np.sin(a) / h
-        beam, i, j = traverse(np.full(len(r), u0), np.full(len(r), v0), u1, v1)
-        inside = (i >= 0) & (i < ny) & (j >= 0) & (j < nx)
-        free = (i * nx + j)[inside]
+        free = crossed_cells(np.full(len(r), u0), np.full(len(r), v0), u1, v1, ny, nx)
         ei = np.floor(v1[hit]).astype(np.int64)
         ej = np.floor(u1[hit]).astype(np.int64)
         ein = (ei >= 0) & (ei < ny) & (ej >= 0) & (ej < nx)
@@ -302,6 +410,9 @@ class LiveGrid:
         old = lo[touched]
         c = self.config
         new = np.clip(old + self._delta[mark[touched]], c.l_min, c.l_max)
+        if c.hit_floor is not None:
+            self._floor[occ] = c.hit_floor
+            np.maximum(new, self._floor[touched], out=new)
         mark[touched] = 0
         lo[touched] = new  # duplicates write the same value: each cell is updated once
         s_old = self._state(old)
@@ -319,17 +430,18 @@ class LiveGrid:
         cells = state_changed[flip]
         if not len(cells):
             return MapUpdate(state_changed, np.zeros(0, np.int64))
-        delta = np.where(is_free[flip], -1, 1).astype(np.int64)
+        delta = np.where(is_free[flip], -1, 1).astype(np.int32)
         ci, cj = np.divmod(cells, nx)
-        centre = (ci + self._r) * self._pw + (cj + self._r)
-        idx = (centre[:, None] + self._koff[None, :]).ravel()
-        pad = self._pad
-        was_zero = pad[idx] == 0
-        np.add.at(pad, idx, np.repeat(delta.astype(np.int32), len(self._koff)))
-        now_zero = pad[idx] == 0
-        flipped = np.unique(idx[was_zero != now_zero])
+        r = self._r
+        h0, h1 = int(ci.min()), int(ci.max()) + 1
+        w0, w1 = int(cj.min()), int(cj.max()) + 1
+        area = (h1 - h0 + 2 * r) * (w1 - w0 + 2 * r)
+        if len(cells) * len(self._koff) <= (len(self._rows) + 4) * area:
+            flipped = self._spread_sparse(ci, cj, delta)
+        else:
+            flipped = self._spread_dense(ci, cj, delta, h0, h1, w0, w1)
         pr, pc = np.divmod(flipped, self._pw)
-        pr -= self._r
-        pc -= self._r
+        pr -= r
+        pc -= r
         inside = (pr >= 0) & (pr < ny) & (pc >= 0) & (pc < nx)
         return MapUpdate(state_changed, np.sort(pr[inside] * nx + pc[inside]))

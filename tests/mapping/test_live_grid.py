@@ -53,6 +53,27 @@ def test_traverse_matches_reference_on_random_segments():
         assert set(got) == _crossed_reference(u0[b], v0[b], u1[b], v1[b]), b
 
 
+def test_crossed_cells_equal_traverse_inside_the_grid():
+    from sanav_mj.mapping.live_grid import crossed_cells
+
+    rng = np.random.default_rng(1)
+    ny, nx = 23, 37
+    n = 400
+    u0, v0 = rng.uniform(-10, 47, n), rng.uniform(-10, 33, n)  # many start outside the grid
+    length = rng.uniform(0, 40, n)
+    ang = rng.uniform(-np.pi, np.pi, n)
+    u1, v1 = u0 + length * np.cos(ang), v0 + length * np.sin(ang)
+    beam, i, j = traverse(u0, v0, u1, v1)
+    inside = (i >= 0) & (i < ny) & (j >= 0) & (j < nx)
+    got = crossed_cells(u0, v0, u1, v1, ny, nx)
+    assert got.min() >= 0 and got.max() < ny * nx
+    assert set(got.tolist()) == set((i * nx + j)[inside].tolist())
+    for b in range(0, n, 7):  # per segment too
+        one = crossed_cells(u0[b:b + 1], v0[b:b + 1], u1[b:b + 1], v1[b:b + 1], ny, nx)
+        sel = (beam == b) & inside
+        assert sorted(one.tolist()) == sorted((i * nx + j)[sel].tolist()), b
+
+
 def test_inflation_offsets_square_to_square_distance():
     off = inflation_offsets(0.12, 0.05)
     got = {tuple(o) for o in off.tolist()}
@@ -95,7 +116,7 @@ def test_single_scan_states():
 
 
 def test_hit_needs_several_free_passes_and_unknown_between():
-    c = LiveGridConfig()
+    c = LiveGridConfig(hit_floor=None)
     g = LiveGrid((0, 0, 4, 4), 0.1, 0.0, c)
     g.integrate((0.55, 0.55), 0.0, [2.0], [True], [0.0])  # end cell (5, 25)
     assert g.states()[5, 25] == OCCUPIED
@@ -109,6 +130,18 @@ def test_hit_needs_several_free_passes_and_unknown_between():
     assert passes == math.ceil((c.l_occ - c.free_thresh) / -c.l_free - 1e-9)
 
 
+def test_a_hit_cell_never_turns_free_again():
+    g = LiveGrid((0, 0, 4, 4), 0.1, 0.0)
+    g.integrate((0.55, 0.55), 0.0, [2.0], [True], [0.0])  # end cell (5, 25)
+    for _ in range(30):
+        g.integrate((0.55, 0.55), 0.0, [3.0], [True], [0.0])
+        assert g.states()[5, 25] != FREE
+    assert g.states()[5, 25] == UNKNOWN and g.log_odds[5, 25] == g.config.hit_floor
+    assert g.states()[5, 24] == FREE  # its never-hit neighbour on the beam is free
+    with pytest.raises(ValueError, match="hit_floor"):
+        LiveGridConfig(hit_floor=-0.5)
+
+
 def test_one_return_makes_a_well_seen_free_cell_unsafe():
     g = LiveGrid((0, 0, 4, 4), 0.1, 0.0)
     for _ in range(20):  # cell (5, 25) crossed 20 times: log-odds at the lower clamp
@@ -119,6 +152,29 @@ def test_one_return_makes_a_well_seen_free_cell_unsafe():
     assert 5 * 40 + 25 in up.state_changed.tolist()
     with pytest.raises(ValueError, match="one return"):
         LiveGridConfig(l_min=-2.0, l_occ=1.0)
+
+
+def test_sparse_and_dense_count_spreading_agree():
+    """The two ways of spreading count changes (per kernel offset / by row runs over the
+    bounding window) give the same counts and the same flipped cells."""
+    import copy
+
+    rng = np.random.default_rng(3)
+    g = LiveGrid((0, 0, 5.0, 3.0), 0.05, 0.33)
+    assert sum(2 * w + 1 for _, w in g._rows) == len(g._offsets)
+    nx = g.shape[1]
+    for _ in range(6):
+        k = int(rng.integers(1, 400))
+        cells = np.unique(rng.integers(0, g.shape[0] * nx, k))
+        ci, cj = np.divmod(cells, nx)
+        delta = rng.choice(np.array([-1, 1], dtype=np.int32), len(cells))
+        a, b = copy.deepcopy(g), copy.deepcopy(g)
+        fa = a._spread_sparse(ci, cj, delta)
+        fb = b._spread_dense(ci, cj, delta, int(ci.min()), int(ci.max()) + 1, int(cj.min()), int(cj.max()) + 1)
+        assert np.array_equal(a._pad, b._pad)
+        assert np.array_equal(np.sort(fa), np.sort(fb))
+        assert len(fa) > 0
+        g = a
 
 
 def _brute_safe(states, inflation, h):
