@@ -35,7 +35,7 @@ passes aside), with no sort.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -99,10 +99,13 @@ class MapUpdate:
         state_changed: (K,) int64 flat indices (``i * nx + j``) of cells whose state
             (unknown / free / occupied) changed, each once.
         safe_changed: (S,) int64 flat indices of cells whose safe state flipped, each once.
+        route_changed: (T,) int64 flat indices of cells whose route state
+            (:meth:`LiveGrid.route_safe`) flipped, each once.
     """
 
     state_changed: np.ndarray
     safe_changed: np.ndarray
+    route_changed: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 def inflation_offsets(inflation: float, resolution: float) -> np.ndarray:
@@ -302,8 +305,12 @@ class LiveGrid:
         # the kernel as row runs (di, half-width): the square-to-square distance grows with |dj|
         self._rows = [(int(di), int(np.abs(self._offsets[self._offsets[:, 0] == di, 1]).max()))
                       for di in np.unique(self._offsets[:, 0])]
-        nonfree = self.states() != FREE
-        self._pad.reshape(ny + 2 * r, self._pw)[r:r + ny, r:r + nx] = dilate_count(nonfree, self._offsets)
+        states = self.states()
+        self._pad.reshape(ny + 2 * r, self._pw)[r:r + ny, r:r + nx] = dilate_count(states != FREE, self._offsets)
+        # route counts: occupied (or ever hit) cells only; unknown counts as passable
+        self._route = np.zeros_like(self._pad)
+        self._route.reshape(ny + 2 * r, self._pw)[r:r + ny, r:r + nx] = dilate_count(states == OCCUPIED,
+                                                                                     self._offsets)
         self._mark = np.zeros(ny * nx, dtype=np.int8)
         self._floor = np.full(ny * nx, config.l_min, dtype=np.float32)  # per-cell lower clamp
         self._delta = np.array([0.0, config.l_free, config.l_occ], dtype=np.float32)
@@ -327,19 +334,41 @@ class LiveGrid:
         """(ny, nx) bool: observed free and no occupied or unknown cell within the inflation radius."""
         return self.blocked == 0
 
-    def _spread_sparse(self, ci, cj, delta) -> np.ndarray:
+    def _spread(self, pad: np.ndarray, cells: np.ndarray, delta: np.ndarray) -> np.ndarray:
+        """Add ``delta`` (+-1) of each of ``cells`` (flat) to the counts ``pad`` around it.
+
+        Returns the sorted flat grid indices whose count went from zero to non-zero or back.
+        Few cells: per kernel offset; many: by row runs over their bounding window."""
+        ny, nx = self.shape
+        if not len(cells):
+            return np.zeros(0, np.int64)
+        ci, cj = np.divmod(cells, nx)
+        r = self._r
+        h0, h1 = int(ci.min()), int(ci.max()) + 1
+        w0, w1 = int(cj.min()), int(cj.max()) + 1
+        area = (h1 - h0 + 2 * r) * (w1 - w0 + 2 * r)
+        if len(cells) * len(self._koff) <= (len(self._rows) + 4) * area:
+            flipped = self._spread_sparse(pad, ci, cj, delta)
+        else:
+            flipped = self._spread_dense(pad, ci, cj, delta, h0, h1, w0, w1)
+        pr, pc = np.divmod(flipped, self._pw)
+        pr -= r
+        pc -= r
+        inside = (pr >= 0) & (pr < ny) & (pc >= 0) & (pc < nx)
+        return np.sort(pr[inside] * nx + pc[inside])
+
+    def _spread_sparse(self, pad, ci, cj, delta) -> np.ndarray:
         """Add ``delta`` of each changed cell to the counts around it, cell by kernel offset.
 
         Returns the padded flat indices whose count went from zero to non-zero or back."""
         centre = (ci + self._r) * self._pw + (cj + self._r)
         idx = (centre[:, None] + self._koff[None, :]).ravel()
-        pad = self._pad
         was_zero = pad[idx] == 0
         np.add.at(pad, idx, np.repeat(delta, len(self._koff)))
         now_zero = pad[idx] == 0
         return np.unique(idx[was_zero != now_zero])
 
-    def _spread_dense(self, ci, cj, delta, h0, h1, w0, w1) -> np.ndarray:
+    def _spread_dense(self, pad, ci, cj, delta, h0, h1, w0, w1) -> np.ndarray:
         """As :meth:`_spread_sparse`, over the changed cells' bounding window at once: the
         kernel is a stack of row runs, each a difference of row-wise prefix sums."""
         r = self._r
@@ -351,11 +380,30 @@ class LiveGrid:
         for di, w in self._rows:
             rows = csum[r + di:r + di + hh]
             out += rows[:, r + w + 1:r + w + 1 + ww] - rows[:, r - w:r - w + ww]
-        view = self._pad.reshape(-1, self._pw)[h0:h0 + hh, w0:w0 + ww]  # padded coords = grid + r
+        view = pad.reshape(-1, self._pw)[h0:h0 + hh, w0:w0 + ww]  # padded coords = grid + r
         was_zero = view == 0
         view += out
         a, b = np.nonzero(was_zero != (view == 0))
         return (a + h0) * self._pw + (b + w0)
+
+    def route_safe(self) -> np.ndarray:
+        """(ny, nx) bool: no occupied cell, nor one that ever held a return (with
+        ``hit_floor``), within the inflation radius; unknown space counts as passable. Where
+        a route towards the goal may be planned through unexplored space; never for the
+        MPC's constraints, which use :meth:`safe`."""
+        ny, nx = self.shape
+        r = self._r
+        return self._route.reshape(ny + 2 * r, self._pw)[r:r + ny, r:r + nx] == 0
+
+    def route_safe_at(self, cells) -> np.ndarray:
+        """(K,) bool route state (:meth:`route_safe`) of the cells with flat indices ``cells``."""
+        i, j = np.divmod(np.asarray(cells, dtype=np.int64), self.shape[1])
+        return self._route[(i + self._r) * self._pw + (j + self._r)] == 0
+
+    def route_grid(self) -> OccupancyGrid:
+        """:meth:`route_safe` as an :class:`OccupancyGrid` (``occupied`` = not route-safe)."""
+        return OccupancyGrid(occupied=~self.route_safe(), resolution=self.resolution, origin=self.origin.copy(),
+                             inflation=self.inflation, bounds=self.bounds.copy())
 
     def safe_at(self, cells) -> np.ndarray:
         """(K,) bool safe state of the cells with flat indices ``cells`` (``i * nx + j``)."""
@@ -389,7 +437,7 @@ class LiveGrid:
                              f"{hit.shape}, {a.shape}")
         ok = np.isfinite(r) & np.isfinite(a)
         if not np.all(np.isfinite(o)):
-            return MapUpdate(np.zeros(0, np.int64), np.zeros(0, np.int64))
+            return MapUpdate(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
         r, hit, a = r[ok], hit[ok], a[ok]
         h = self.resolution
         ny, nx = self.shape
@@ -411,8 +459,13 @@ class LiveGrid:
         c = self.config
         new = np.clip(old + self._delta[mark[touched]], c.l_min, c.l_max)
         if c.hit_floor is not None:
+            hit_old = self._floor[touched] == c.hit_floor
             self._floor[occ] = c.hit_floor
-            np.maximum(new, self._floor[touched], out=new)
+            floor = self._floor[touched]
+            hit_new = floor == c.hit_floor
+            np.maximum(new, floor, out=new)
+        else:
+            hit_old = hit_new = np.zeros(len(touched), dtype=bool)
         mark[touched] = 0
         lo[touched] = new  # duplicates write the same value: each cell is updated once
         s_old = self._state(old)
@@ -427,21 +480,12 @@ class LiveGrid:
         was_free = s_old[ch][keep] == FREE
         is_free = s_new[ch][keep] == FREE
         flip = was_free != is_free
-        cells = state_changed[flip]
-        if not len(cells):
-            return MapUpdate(state_changed, np.zeros(0, np.int64))
-        delta = np.where(is_free[flip], -1, 1).astype(np.int32)
-        ci, cj = np.divmod(cells, nx)
-        r = self._r
-        h0, h1 = int(ci.min()), int(ci.max()) + 1
-        w0, w1 = int(cj.min()), int(cj.max()) + 1
-        area = (h1 - h0 + 2 * r) * (w1 - w0 + 2 * r)
-        if len(cells) * len(self._koff) <= (len(self._rows) + 4) * area:
-            flipped = self._spread_sparse(ci, cj, delta)
-        else:
-            flipped = self._spread_dense(ci, cj, delta, h0, h1, w0, w1)
-        pr, pc = np.divmod(flipped, self._pw)
-        pr -= r
-        pc -= r
-        inside = (pr >= 0) & (pr < ny) & (pc >= 0) & (pc < nx)
-        return MapUpdate(state_changed, np.sort(pr[inside] * nx + pc[inside]))
+        safe_changed = self._spread(self._pad, state_changed[flip], np.where(is_free[flip], -1, 1).astype(np.int32))
+        # route blocking: occupied now, or ever held a return (with hit_floor); cells that
+        # faded to unknown after a return keep blocking routes, so routes do not flicker
+        rb_old = (s_old == OCCUPIED) | hit_old
+        rb_new = (s_new == OCCUPIED) | hit_new
+        rch = rb_old != rb_new
+        rcells, rfirst = np.unique(touched[rch], return_index=True)
+        route_changed = self._spread(self._route, rcells, np.where(rb_new[rch][rfirst], 1, -1).astype(np.int32))
+        return MapUpdate(state_changed, safe_changed, route_changed)

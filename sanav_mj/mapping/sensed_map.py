@@ -5,6 +5,10 @@ inflated safe grid) to :class:`~sanav_mj.mapping.incremental.IncrementalSafeArea
 times both. It takes plain arrays (the measured robot pose and a scan's ranges), so it sits
 in the mapping stage and knows nothing of MuJoCo; ``sanav_mj.sim.lidar`` produces the scans.
 
+Optionally (default) it also keeps *route* areas, where only occupied cells are inflated
+and unknown space counts as passable: a route to a goal in unexplored space is planned on
+those, while the MPC's constraints use the safe areas alone.
+
 Every safe rectangle it returns is observed free space with no occupied or unknown cell
 within the inflation radius; :meth:`SensedMap.rects_still_safe` tells whether rectangles
 handed out earlier (a corridor) are still entirely safe after the latest scans, the test
@@ -33,12 +37,16 @@ class SensedMapConfig:
         min_cell: [cells] quadtree minimum node size, integer >= 1.
         tile: [cells] incremental-update tile edge, a power of two >= the smallest leaf.
         grid: log-odds parameters.
+        route: also keep the *route* areas (:meth:`LiveGrid.route_safe`: unknown counts as
+            passable, only occupied cells are inflated), on which a route towards a goal in
+            unexplored space can be planned; the MPC's constraints use the safe areas only.
     """
 
     resolution: float = 0.05
     min_cell: int = 1
     tile: int = 32
     grid: LiveGridConfig = field(default_factory=LiveGridConfig)
+    route: bool = True
 
     def __post_init__(self) -> None:
         if not (isinstance(self.resolution, (int, float)) and math.isfinite(self.resolution) and self.resolution > 0):
@@ -55,8 +63,11 @@ class SensedUpdate:
         n_safe_changed: cells whose safe state changed.
         boxes: (R, 4) int64 cell boxes of the safe areas, sorted by ``(i0, j0)``.
         areas: the safe areas and their graph (world metres).
+        route_changed: whether any cell's route state changed.
+        route_boxes, route_areas: the route areas (``None`` when the map keeps none).
         timing_ms: [ms] ``map`` (grid update and inflation), ``areas`` (incremental
-            quadtree / merge / graph), ``snapshot`` (compact arrays), ``total``.
+            quadtree / merge / graph), ``snapshot`` (compact arrays), ``route`` (the same two
+            for the route areas), ``total``.
     """
 
     changed: bool
@@ -65,6 +76,9 @@ class SensedUpdate:
     boxes: np.ndarray
     areas: SafeAreas
     timing_ms: dict[str, float]
+    route_changed: bool = False
+    route_boxes: np.ndarray | None = None
+    route_areas: SafeAreas | None = None
 
 
 class SensedMap:
@@ -87,6 +101,9 @@ class SensedMap:
         self.grid = LiveGrid(bounds, config.resolution, inflation, config.grid)
         self.areas = IncrementalSafeAreas(self.grid.safe_grid(), config.min_cell, config.tile)
         self._snapshot = self.areas.safe_areas()
+        self.route = (IncrementalSafeAreas(self.grid.route_grid(), config.min_cell, config.tile)
+                      if config.route else None)
+        self._route_snapshot = self.route.safe_areas() if self.route is not None else (None, None)
 
     def integrate(self, pose, ranges, hit, angles) -> SensedUpdate:
         """Add one scan taken at the measured robot pose.
@@ -116,11 +133,18 @@ class SensedMap:
         if cells.size:
             self._snapshot = self.areas.safe_areas()
         t3 = time.perf_counter()
+        rcells = up.route_changed
+        if self.route is not None and rcells.size:
+            self.route.update_cells(rcells, ~self.grid.route_safe_at(rcells))
+            self._route_snapshot = self.route.safe_areas()
+        t4 = time.perf_counter()
         boxes, areas = self._snapshot
         timing = {"map": 1e3 * (t1 - t0), "areas": 1e3 * (t2 - t1), "snapshot": 1e3 * (t3 - t2),
-                  "total": 1e3 * (t3 - t0)}
+                  "route": 1e3 * (t4 - t3), "total": 1e3 * (t4 - t0)}
         return SensedUpdate(changed=bool(cells.size), n_state_changed=int(up.state_changed.size),
-                            n_safe_changed=int(cells.size), boxes=boxes, areas=areas, timing_ms=timing)
+                            n_safe_changed=int(cells.size), boxes=boxes, areas=areas, timing_ms=timing,
+                            route_changed=bool(rcells.size) and self.route is not None,
+                            route_boxes=self._route_snapshot[0], route_areas=self._route_snapshot[1])
 
     def rects_still_safe(self, rects) -> np.ndarray:
         """Whether each world rectangle still lies entirely in safe cells.

@@ -169,8 +169,9 @@ def test_sparse_and_dense_count_spreading_agree():
         ci, cj = np.divmod(cells, nx)
         delta = rng.choice(np.array([-1, 1], dtype=np.int32), len(cells))
         a, b = copy.deepcopy(g), copy.deepcopy(g)
-        fa = a._spread_sparse(ci, cj, delta)
-        fb = b._spread_dense(ci, cj, delta, int(ci.min()), int(ci.max()) + 1, int(cj.min()), int(cj.max()) + 1)
+        fa = a._spread_sparse(a._pad, ci, cj, delta)
+        fb = b._spread_dense(b._pad, ci, cj, delta, int(ci.min()), int(ci.max()) + 1, int(cj.min()),
+                             int(cj.max()) + 1)
         assert np.array_equal(a._pad, b._pad)
         assert np.array_equal(np.sort(fa), np.sort(fb))
         assert len(fa) > 0
@@ -200,6 +201,8 @@ def test_incremental_safe_grid_equals_recomputation(seed):
     bounds = (0.0, 0.0, 6.05, 4.0)  # not a whole number of cells wide: last column straddles
     g = LiveGrid(bounds, h, infl)
     assert np.all(g.states()[:, -1] == OCCUPIED)
+    route_now = g.route_safe()
+    n_route = 0
     angles = np.linspace(-2.3, 2.3, 181)
     for step in range(25):
         wall = rng.uniform(2.5, 5.9)
@@ -213,9 +216,18 @@ def test_incremental_safe_grid_equals_recomputation(seed):
         assert sorted(up.state_changed.tolist()) == np.flatnonzero((s_before != s_after).ravel()).tolist()
         assert up.safe_changed.tolist() == np.flatnonzero((safe_before != safe_after).ravel()).tolist()
         assert np.array_equal(g.blocked, dilate_count(s_after != FREE, inflation_offsets(infl, h)))
+        # the route grid: only occupied cells block (unknown is passable)
+        route_before = route_now
+        ever_hit = (g._floor == g.config.hit_floor).reshape(g.shape)
+        route_now = dilate_count((s_after == OCCUPIED) | ever_hit, inflation_offsets(infl, h)) == 0
+        assert np.array_equal(g.route_safe(), route_now)
+        assert up.route_changed.tolist() == np.flatnonzero((route_before != route_now).ravel()).tolist()
+        n_route += len(up.route_changed)
+        assert np.all(g.route_safe() | ~g.safe())  # safe implies route-safe
         if step % 8 == 7:
             assert np.array_equal(safe_after, _brute_safe(s_after, infl, h))
     assert np.count_nonzero(g.safe()) > 100
+    assert n_route > 100
 
 
 def test_safe_grid_is_occupancy_grid_compatible():

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from sanav_mj.mapping.safe_areas import build_safe_areas
-from sanav_mj.mapping.sensed_map import SensedMap
+from sanav_mj.mapping.sensed_map import SensedMap, SensedMapConfig
 
 
 def _scan(pose, offset, angles, boxes, room, max_range=6.0):
@@ -51,7 +51,19 @@ def test_scans_give_the_rebuilds_coverage_and_replan_test():
         for i0, j0, i1, j1 in ref.boxes.tolist():
             ref_paint[i0:i1, j0:j1] += 1
         assert np.array_equal(paint, ref_paint) and paint.max() <= 1
-        assert set(up.timing_ms) == {"map", "areas", "snapshot", "total"}
+        assert set(up.timing_ms) == {"map", "areas", "snapshot", "route", "total"}
+        # route areas: the rebuild's coverage of the route grid (unknown passable)
+        route_ref = build_safe_areas(sm.grid.route_grid())
+        rp = np.zeros(sm.grid.shape, dtype=int)
+        for i0, j0, i1, j1 in up.route_boxes.tolist():
+            rp[i0:i1, j0:j1] += 1
+        rr = np.zeros(sm.grid.shape, dtype=int)
+        for i0, j0, i1, j1 in route_ref.boxes.tolist():
+            rr[i0:i1, j0:j1] += 1
+        assert np.array_equal(rp, rr) and rp.max() <= 1
+        assert np.all(rp[paint == 1] == 1)  # safe space is route space
+    # unexplored space (behind the box, in the blind sector behind the robot) is routable, not safe
+    assert rp.sum() > paint.sum()
     assert up.areas.rects.shape[0] > 0
     # the sensor offset is applied: the box's near face (x = 4.0) is occupied at its cell
     st = sm.grid.states()
@@ -73,3 +85,7 @@ def test_scans_give_the_rebuilds_coverage_and_replan_test():
     # an unchanged scan changes nothing
     up3 = sm.integrate(pose, r, hit, angles)
     assert up3.boxes is up2.boxes or np.array_equal(up3.boxes, up2.boxes)
+    # without route areas
+    plain = SensedMap(room, 0.3, offset, SensedMapConfig(route=False))
+    upp = plain.integrate(pose, r, hit, angles)
+    assert upp.route_boxes is None and upp.route_areas is None and not upp.route_changed
