@@ -1,0 +1,491 @@
+"""An occupancy grid that grows scan by scan, and the safe grid derived from it incrementally.
+
+The map lives in the world frame on the same cells as the known-map grid
+(:func:`sanav_mj.mapping.occupancy.grid_shape`: origin at the workspace's lower-left corner).
+Each cell holds a log-odds value ``L`` (0 = never observed), updated by every scan from the
+*measured* sensor pose (so pose noise acts on the map, as on a real robot):
+
+* every cell a beam crosses before its end gets ``l_free`` (at most once per scan);
+* the cell holding a return's end point gets ``l_occ`` (returns only: a beam with no return
+  within the maximum range clears its whole length and marks nothing occupied);
+* a cell that is both crossed and hit in one scan counts as hit; ``L`` is clamped to
+  ``[l_min, l_max]``.
+
+States: occupied where ``L >= occ_thresh``, free where ``L <= free_thresh``, unknown in
+between (so a cell hit once and crossed by one grazing beam afterwards is not free yet).
+Cells that straddle the workspace boundary are occupied from the start, as in the
+known-map grid.
+
+Safe grid: a cell is safe iff no *non-free* (occupied or unknown) cell lies within the
+inflation radius of it, measured square to square (the closed cell squares, like the
+known-map rasteriser measures a cell against an inflated obstacle). Every safe cell is
+therefore observed free, and unknown space is never safe. It is kept as a count, per cell,
+of the non-free cells within the radius; a scan changes the count only around the cells
+whose free / non-free status changed, so the update costs O(changed cells x kernel cells)
+and returns exactly the cells whose safe state flipped (input to
+:mod:`sanav_mj.mapping.incremental`).
+
+Beam traversal (:func:`traverse`) is exact and vectorised over all beams: each beam is
+stepped along its major axis one column (row) at a time; within one column a segment of
+slope <= 1 covers one or two cells, the ones holding the segment's entry and exit points.
+That is the set of cells whose interior the segment crosses (degenerate exact-corner
+passes aside), with no sort.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sanav_mj.mapping.occupancy import OccupancyGrid, grid_shape
+
+UNKNOWN, FREE, OCCUPIED = 0, 1, 2
+"""Cell states returned by :meth:`LiveGrid.states`."""
+
+_SIZE_TOL = 1e-6
+
+
+@dataclass(frozen=True)
+class LiveGridConfig:
+    """Log-odds occupancy update parameters (dimensionless log-odds).
+
+    Attributes:
+        l_free: increment for a cell crossed by a beam, < 0.
+        l_occ: increment for a cell holding a return, > 0.
+        l_min, l_max: clamping bounds, ``l_min < free_thresh < 0 < occ_thresh < l_max``, and
+            ``l_min + l_occ > free_thresh``: a single return makes any cell non-free (so
+            unsafe) at once, however often it was seen free before (safety first).
+        free_thresh: a cell is free when ``L <= free_thresh``.
+        occ_thresh: a cell is occupied when ``L >= occ_thresh``.
+        hit_floor: a cell that has held a return never drops below this log-odds again
+            (default 0: it may fade to unknown but never becomes free, so beams grazing a
+            wall between two returns cannot clear the wall's cells; static worlds); None:
+            plain clamping at ``l_min``.
+    """
+
+    l_free: float = -0.4
+    l_occ: float = 1.0
+    l_min: float = -1.0
+    l_max: float = 3.5
+    free_thresh: float = -0.35
+    occ_thresh: float = 0.5
+    hit_floor: float | None = 0.0
+
+    def __post_init__(self) -> None:
+        if self.hit_floor is not None and not (isinstance(self.hit_floor, (int, float))
+                                               and self.free_thresh < self.hit_floor <= self.l_max):
+            raise ValueError(f"LiveGridConfig.hit_floor must be None or in (free_thresh, l_max] = "
+                             f"({self.free_thresh}, {self.l_max}], got {self.hit_floor!r}")
+        vals = (self.l_free, self.l_occ, self.l_min, self.l_max, self.free_thresh, self.occ_thresh)
+        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals):
+            raise ValueError(f"LiveGridConfig fields must be finite numbers, got {vals}")
+        if not (self.l_free < 0 < self.l_occ):
+            raise ValueError(f"LiveGridConfig needs l_free < 0 < l_occ, got {self.l_free}, {self.l_occ}")
+        if not (self.l_min <= self.free_thresh < 0 < self.occ_thresh <= self.l_max):
+            raise ValueError("LiveGridConfig needs l_min <= free_thresh < 0 < occ_thresh <= l_max, got "
+                             f"{self.l_min}, {self.free_thresh}, {self.occ_thresh}, {self.l_max}")
+        if not self.l_min + self.l_occ > self.free_thresh:
+            raise ValueError("LiveGridConfig needs l_min + l_occ > free_thresh (one return makes a cell non-free), "
+                             f"got {self.l_min} + {self.l_occ} <= {self.free_thresh}")
+
+
+@dataclass(frozen=True)
+class MapUpdate:
+    """What one scan changed.
+
+    Attributes:
+        state_changed: (K,) int64 flat indices (``i * nx + j``) of cells whose state
+            (unknown / free / occupied) changed, each once.
+        safe_changed: (S,) int64 flat indices of cells whose safe state flipped, each once.
+        route_changed: (T,) int64 flat indices of cells whose route state
+            (:meth:`LiveGrid.route_safe`) flipped, each once.
+    """
+
+    state_changed: np.ndarray
+    safe_changed: np.ndarray
+    route_changed: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+
+def inflation_offsets(inflation: float, resolution: float) -> np.ndarray:
+    """Cell offsets ``(di, dj)`` whose closed squares lie within ``inflation`` of the centre cell's.
+
+    The distance between the squares of cells offset by ``(di, dj)`` is
+    ``hypot(max(|di|-1, 0), max(|dj|-1, 0)) * resolution``; an offset is kept when it is
+    ``<= inflation`` (ties within 1e-9 m kept, the conservative side).
+
+    Returns:
+        (K, 2) int64, including ``(0, 0)``.
+    """
+    r = int(math.floor(inflation / resolution + 1e-9)) + 1
+    di, dj = np.mgrid[-r:r + 1, -r:r + 1]
+    gap = np.hypot(np.maximum(np.abs(di) - 1, 0), np.maximum(np.abs(dj) - 1, 0)) * resolution
+    keep = gap <= inflation + 1e-9
+    return np.stack([di[keep], dj[keep]], axis=1).astype(np.int64)
+
+
+def dilate_count(mask: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """For every cell, the number of ``mask`` cells at the given offsets from it (out of grid: 0).
+
+    Args:
+        mask: (ny, nx) bool.
+        offsets: (K, 2) int cell offsets (symmetric sets give the usual dilation count).
+
+    Returns:
+        (ny, nx) int32.
+    """
+    ny, nx = mask.shape
+    r = int(np.abs(offsets).max()) if len(offsets) else 0
+    pad = np.zeros((ny + 2 * r, nx + 2 * r), dtype=np.int32)
+    pad[r:r + ny, r:r + nx] = mask
+    out = np.zeros((ny, nx), dtype=np.int32)
+    for di, dj in offsets:
+        out += pad[r + di:r + di + ny, r + dj:r + dj + nx]
+    return out
+
+
+def traverse(u0: np.ndarray, v0: np.ndarray, u1: np.ndarray, v1: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cells crossed by segments, in cell coordinates (cell ``(i, j)`` is ``[j, j+1) x [i, i+1)``).
+
+    Each segment is stepped along its major axis: the minor coordinate at each boundary
+    between consecutive major-axis columns is ``base + k * inc`` (one multiply-add per
+    column); a column holds the cells of its entry and exit points (one, or two adjacent).
+
+    Args:
+        u0, v0, u1, v1: (B,) float start and end points, x (column) and y (row) in cell units.
+
+    Returns:
+        beam: (M,) int64 segment index of each crossed cell.
+        i, j: (M,) int64 row and column. Each segment's cells appear once each (grouped by
+        kind, not in travel order); its start and end cells are included. Cells may lie
+        outside any grid.
+    """
+    u0, v0, u1, v1 = (np.asarray(a, dtype=float) for a in (u0, v0, u1, v1))
+    xmajor = np.abs(u1 - u0) >= np.abs(v1 - v0)
+    a0 = np.where(xmajor, u0, v0)  # major axis
+    b0 = np.where(xmajor, v0, u0)
+    a1 = np.where(xmajor, u1, v1)
+    b1 = np.where(xmajor, v1, u1)
+    c0 = np.floor(a0)
+    c1 = np.floor(a1)
+    step = np.where(c1 >= c0, 1.0, -1.0)
+    n = (np.abs(c1 - c0) + 1).astype(np.int64)
+    da = a1 - a0
+    slope = np.divide(b1 - b0, da, out=np.zeros_like(da), where=da != 0)
+    # minor coordinate at the far boundary of column k: b0 + (c0 + k*step + [step > 0] - a0) * slope
+    base = b0 + (c0 + (step > 0) - a0) * slope
+    inc = step * slope
+    start = np.cumsum(n) - n
+    total = int(n.sum())
+    beam = np.repeat(np.arange(len(a0)), n)
+    k = np.arange(total, dtype=float) - np.repeat(start.astype(float), n)
+    exit_ = np.floor(np.repeat(base, n) + k * np.repeat(inc, n))
+    last = start + n - 1
+    exit_[last] = np.floor(b1)  # the last column ends at the segment's end point
+    entry = np.empty_like(exit_)
+    entry[1:] = exit_[:-1]
+    entry[start] = np.floor(b0)
+    col = np.repeat(c0, n) + k * np.repeat(step, n)
+    two = entry != exit_
+    beam = np.concatenate([beam, beam[two]])
+    col = np.concatenate([col, col[two]]).astype(np.int64)
+    minor = np.concatenate([entry, exit_[two]]).astype(np.int64)
+    xm = xmajor[beam]
+    return beam, np.where(xm, minor, col), np.where(xm, col, minor)
+
+
+def crossed_cells(u0, v0, u1, v1, ny: int, nx: int) -> np.ndarray:
+    """Flat indices ``i * nx + j`` of the cells of an (ny, nx) grid crossed by segments.
+
+    The same cells as :func:`traverse` keeps inside the grid, faster: each segment is first
+    clipped to the grid (Liang-Barsky), so no work is spent outside it, and the flat index is
+    formed directly (major-axis stride plus minor-axis stride).
+
+    Args:
+        u0, v0, u1, v1: (B,) float segment end points in cell units (x = column, y = row).
+        ny, nx: grid shape.
+
+    Returns:
+        (M,) int64 flat indices; a cell crossed by several segments appears once per segment.
+    """
+    u0, v0, u1, v1 = (np.asarray(a, dtype=float) for a in (u0, v0, u1, v1))
+    du, dv = u1 - u0, v1 - v0
+    t0 = np.zeros(len(u0))
+    t1 = np.ones(len(u0))
+    # clip to [eps, n - eps] (eps = 1e-9 cell): floor() of the clipped points, rounding
+    # included, then stays inside the grid
+    eps = 1e-9
+    for p, q, hi in ((du, u0, nx - eps), (dv, v0, ny - eps)):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ta = (eps - q) / p
+            tb = (hi - q) / p
+        inside = (q >= eps) & (q <= hi)
+        lo_t = np.where(p > 0, ta, np.where(p < 0, tb, np.where(inside, -np.inf, np.inf)))
+        hi_t = np.where(p > 0, tb, np.where(p < 0, ta, np.where(inside, np.inf, -np.inf)))
+        t0 = np.maximum(t0, lo_t)
+        t1 = np.minimum(t1, hi_t)
+    keep = t1 >= t0
+    if not keep.all():
+        u0, v0, du, dv, t0, t1 = u0[keep], v0[keep], du[keep], dv[keep], t0[keep], t1[keep]
+    cu0, cv0 = u0 + t0 * du, v0 + t0 * dv
+    cu1, cv1 = u0 + t1 * du, v0 + t1 * dv
+    xmajor = np.abs(du) >= np.abs(dv)
+    a0 = np.where(xmajor, cu0, cv0)
+    b0 = np.where(xmajor, cv0, cu0)
+    a1 = np.where(xmajor, cu1, cv1)
+    b1 = np.where(xmajor, cv1, cu1)
+    c0, c1 = np.floor(a0), np.floor(a1)
+    step = np.where(c1 >= c0, 1.0, -1.0)
+    n = (np.abs(c1 - c0) + 1).astype(np.int64)
+    da = a1 - a0
+    slope = np.divide(b1 - b0, da, out=np.zeros_like(da), where=da != 0)
+    base = b0 + (c0 + (step > 0) - a0) * slope
+    major_stride = np.where(xmajor, 1.0, float(nx))
+    minor_stride = np.where(xmajor, float(nx), 1.0)
+    start = np.cumsum(n) - n
+    total = int(n.sum())
+    k = np.arange(total, dtype=float) - np.repeat(start.astype(float), n)
+    exit_ = np.floor(np.repeat(base, n) + k * np.repeat(step * slope, n))
+    # between its (clipped) ends the segment's minor coordinate stays between theirs: clip
+    # away rounding at the grid edge (a minor cell of -1 for a segment along the border)
+    fb0, fb1 = np.floor(b0), np.floor(b1)
+    np.clip(exit_, np.repeat(np.minimum(fb0, fb1), n), np.repeat(np.maximum(fb0, fb1), n), out=exit_)
+    exit_[start + n - 1] = fb1
+    entry = np.empty_like(exit_)
+    entry[1:] = exit_[:-1]
+    entry[start] = fb0
+    ms = np.repeat(minor_stride, n)
+    major = np.repeat(c0 * major_stride, n) + k * np.repeat(step * major_stride, n)
+    flat = major + entry * ms
+    two = entry != exit_
+    return np.concatenate([flat, major[two] + exit_[two] * ms[two]]).astype(np.int64)
+
+
+class LiveGrid:
+    """The growing occupancy grid and its inflated safe grid.
+
+    Args:
+        bounds: (4,) [m] workspace xmin, ymin, xmax, ymax (the grid covers it, as the
+            known-map grid does).
+        resolution: [m] cell edge.
+        inflation: [m] robot footprint radius + margin, >= 0.
+        config: log-odds parameters.
+
+    Attributes:
+        log_odds: (ny, nx) float32.
+        blocked: (ny, nx) int32 number of non-free cells within the inflation radius.
+    """
+
+    def __init__(self, bounds, resolution: float, inflation: float,
+                 config: LiveGridConfig = LiveGridConfig()) -> None:
+        b = np.asarray(bounds, dtype=float)
+        ny, nx = grid_shape(b, resolution)
+        if not (math.isfinite(inflation) and inflation >= 0):
+            raise ValueError(f"inflation must be finite and >= 0 [m], got {inflation!r}")
+        self.bounds = b.copy()
+        self.resolution = float(resolution)
+        self.inflation = float(inflation)
+        self.config = config
+        self.origin = b[:2].copy()
+        self.shape = (ny, nx)
+        self.log_odds = np.zeros((ny, nx), dtype=np.float32)
+        h = self.resolution
+        if nx * h > (b[2] - b[0]) + _SIZE_TOL * h:
+            self.log_odds[:, -1] = config.l_max
+        if ny * h > (b[3] - b[1]) + _SIZE_TOL * h:
+            self.log_odds[-1, :] = config.l_max
+        self._offsets = inflation_offsets(self.inflation, h)
+        r = int(np.abs(self._offsets).max())
+        self._r = r
+        self._pw = nx + 2 * r  # padded width: neighbourhood updates need no bounds checks
+        self._pad = np.zeros((ny + 2 * r) * self._pw, dtype=np.int32)
+        self._koff = self._offsets[:, 0] * self._pw + self._offsets[:, 1]
+        # the kernel as row runs (di, half-width): the square-to-square distance grows with |dj|
+        self._rows = [(int(di), int(np.abs(self._offsets[self._offsets[:, 0] == di, 1]).max()))
+                      for di in np.unique(self._offsets[:, 0])]
+        states = self.states()
+        self._pad.reshape(ny + 2 * r, self._pw)[r:r + ny, r:r + nx] = dilate_count(states != FREE, self._offsets)
+        # route counts: occupied (or ever hit) cells only; unknown counts as passable
+        self._route = np.zeros_like(self._pad)
+        self._route.reshape(ny + 2 * r, self._pw)[r:r + ny, r:r + nx] = dilate_count(states == OCCUPIED,
+                                                                                     self._offsets)
+        self._mark = np.zeros(ny * nx, dtype=np.int8)
+        self._floor = np.full(ny * nx, config.l_min, dtype=np.float32)  # per-cell lower clamp
+        self._delta = np.array([0.0, config.l_free, config.l_occ], dtype=np.float32)
+
+    @property
+    def blocked(self) -> np.ndarray:
+        """(ny, nx) int32 view: number of non-free cells within the inflation radius of each cell."""
+        ny, nx = self.shape
+        r = self._r
+        return self._pad.reshape(ny + 2 * r, self._pw)[r:r + ny, r:r + nx]
+
+    def states(self) -> np.ndarray:
+        """(ny, nx) int8 cell states: :data:`UNKNOWN`, :data:`FREE` or :data:`OCCUPIED`."""
+        return self._state(self.log_odds)
+
+    def _state(self, lo: np.ndarray) -> np.ndarray:
+        c = self.config
+        return np.where(lo >= c.occ_thresh, OCCUPIED, np.where(lo <= c.free_thresh, FREE, UNKNOWN)).astype(np.int8)
+
+    def safe(self) -> np.ndarray:
+        """(ny, nx) bool: observed free and no occupied or unknown cell within the inflation radius."""
+        return self.blocked == 0
+
+    def _spread(self, pad: np.ndarray, cells: np.ndarray, delta: np.ndarray) -> np.ndarray:
+        """Add ``delta`` (+-1) of each of ``cells`` (flat) to the counts ``pad`` around it.
+
+        Returns the sorted flat grid indices whose count went from zero to non-zero or back.
+        Few cells: per kernel offset; many: by row runs over their bounding window."""
+        ny, nx = self.shape
+        if not len(cells):
+            return np.zeros(0, np.int64)
+        ci, cj = np.divmod(cells, nx)
+        r = self._r
+        h0, h1 = int(ci.min()), int(ci.max()) + 1
+        w0, w1 = int(cj.min()), int(cj.max()) + 1
+        area = (h1 - h0 + 2 * r) * (w1 - w0 + 2 * r)
+        if len(cells) * len(self._koff) <= (len(self._rows) + 4) * area:
+            flipped = self._spread_sparse(pad, ci, cj, delta)
+        else:
+            flipped = self._spread_dense(pad, ci, cj, delta, h0, h1, w0, w1)
+        pr, pc = np.divmod(flipped, self._pw)
+        pr -= r
+        pc -= r
+        inside = (pr >= 0) & (pr < ny) & (pc >= 0) & (pc < nx)
+        return np.sort(pr[inside] * nx + pc[inside])
+
+    def _spread_sparse(self, pad, ci, cj, delta) -> np.ndarray:
+        """Add ``delta`` of each changed cell to the counts around it, cell by kernel offset.
+
+        Returns the padded flat indices whose count went from zero to non-zero or back."""
+        centre = (ci + self._r) * self._pw + (cj + self._r)
+        idx = (centre[:, None] + self._koff[None, :]).ravel()
+        was_zero = pad[idx] == 0
+        np.add.at(pad, idx, np.repeat(delta, len(self._koff)))
+        now_zero = pad[idx] == 0
+        return np.unique(idx[was_zero != now_zero])
+
+    def _spread_dense(self, pad, ci, cj, delta, h0, h1, w0, w1) -> np.ndarray:
+        """As :meth:`_spread_sparse`, over the changed cells' bounding window at once: the
+        kernel is a stack of row runs, each a difference of row-wise prefix sums."""
+        r = self._r
+        hh, ww = h1 - h0 + 2 * r, w1 - w0 + 2 * r  # output window: the bounding box grown by r
+        dz = np.zeros((hh + 2 * r, ww + 2 * r + 1), dtype=np.int32)
+        np.add.at(dz, (ci - h0 + 2 * r, cj - w0 + 2 * r + 1), delta)  # column 0 stays 0
+        csum = np.cumsum(dz, axis=1, dtype=np.int32)
+        out = np.zeros((hh, ww), dtype=np.int32)
+        for di, w in self._rows:
+            rows = csum[r + di:r + di + hh]
+            out += rows[:, r + w + 1:r + w + 1 + ww] - rows[:, r - w:r - w + ww]
+        view = pad.reshape(-1, self._pw)[h0:h0 + hh, w0:w0 + ww]  # padded coords = grid + r
+        was_zero = view == 0
+        view += out
+        a, b = np.nonzero(was_zero != (view == 0))
+        return (a + h0) * self._pw + (b + w0)
+
+    def route_safe(self) -> np.ndarray:
+        """(ny, nx) bool: no occupied cell, nor one that ever held a return (with
+        ``hit_floor``), within the inflation radius; unknown space counts as passable. Where
+        a route towards the goal may be planned through unexplored space; never for the
+        MPC's constraints, which use :meth:`safe`."""
+        ny, nx = self.shape
+        r = self._r
+        return self._route.reshape(ny + 2 * r, self._pw)[r:r + ny, r:r + nx] == 0
+
+    def route_safe_at(self, cells) -> np.ndarray:
+        """(K,) bool route state (:meth:`route_safe`) of the cells with flat indices ``cells``."""
+        i, j = np.divmod(np.asarray(cells, dtype=np.int64), self.shape[1])
+        return self._route[(i + self._r) * self._pw + (j + self._r)] == 0
+
+    def route_grid(self) -> OccupancyGrid:
+        """:meth:`route_safe` as an :class:`OccupancyGrid` (``occupied`` = not route-safe)."""
+        return OccupancyGrid(occupied=~self.route_safe(), resolution=self.resolution, origin=self.origin.copy(),
+                             inflation=self.inflation, bounds=self.bounds.copy())
+
+    def safe_at(self, cells) -> np.ndarray:
+        """(K,) bool safe state of the cells with flat indices ``cells`` (``i * nx + j``)."""
+        i, j = np.divmod(np.asarray(cells, dtype=np.int64), self.shape[1])
+        return self._pad[(i + self._r) * self._pw + (j + self._r)] == 0
+
+    def safe_grid(self) -> OccupancyGrid:
+        """The safe grid as an :class:`OccupancyGrid` (``occupied`` = not safe), for the quadtree."""
+        return OccupancyGrid(occupied=~self.safe(), resolution=self.resolution, origin=self.origin.copy(),
+                             inflation=self.inflation, bounds=self.bounds.copy())
+
+    def integrate(self, origin, heading: float, ranges, hit, angles) -> MapUpdate:
+        """Add one scan taken at a given sensor pose.
+
+        Args:
+            origin: (2,) [m] world x, y of the sensor (from the measured robot pose).
+            heading: [rad] world yaw of the sensor.
+            ranges: (B,) [m] measured ranges (for beams without a return: the maximum range).
+            hit: (B,) bool, True where the beam returned.
+            angles: (B,) [rad] beam directions relative to ``heading``.
+
+        Returns:
+            The cells whose state and whose safe state changed.
+        """
+        o = np.asarray(origin, dtype=float).reshape(2)
+        r = np.asarray(ranges, dtype=float)
+        hit = np.asarray(hit, dtype=bool)
+        a = heading + np.asarray(angles, dtype=float)
+        if not (r.shape == hit.shape == a.shape and r.ndim == 1):
+            raise ValueError(f"ranges, hit, angles must be (B,) arrays of one length, got {r.shape}, "
+                             f"{hit.shape}, {a.shape}")
+        ok = np.isfinite(r) & np.isfinite(a)
+        if not np.all(np.isfinite(o)):
+            return MapUpdate(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
+        r, hit, a = r[ok], hit[ok], a[ok]
+        h = self.resolution
+        ny, nx = self.shape
+        u0 = (o[0] - self.origin[0]) / h
+        v0 = (o[1] - self.origin[1]) / h
+        u1 = u0 + r * np.cos(a) / h
+        v1 = v0 + r * np.sin(a) / h
+        free = crossed_cells(np.full(len(r), u0), np.full(len(r), v0), u1, v1, ny, nx)
+        ei = np.floor(v1[hit]).astype(np.int64)
+        ej = np.floor(u1[hit]).astype(np.int64)
+        ein = (ei >= 0) & (ei < ny) & (ej >= 0) & (ej < nx)
+        occ = (ei * nx + ej)[ein]
+        mark = self._mark
+        mark[free] = 1
+        mark[occ] = 2  # a cell hit in this scan counts as hit, not crossed
+        touched = np.concatenate([free, occ])
+        lo = self.log_odds.reshape(-1)
+        old = lo[touched]
+        c = self.config
+        new = np.clip(old + self._delta[mark[touched]], c.l_min, c.l_max)
+        if c.hit_floor is not None:
+            hit_old = self._floor[touched] == c.hit_floor
+            self._floor[occ] = c.hit_floor
+            floor = self._floor[touched]
+            hit_new = floor == c.hit_floor
+            np.maximum(new, floor, out=new)
+        else:
+            hit_old = hit_new = np.zeros(len(touched), dtype=bool)
+        mark[touched] = 0
+        lo[touched] = new  # duplicates write the same value: each cell is updated once
+        s_old = self._state(old)
+        s_new = self._state(new)
+        ch = s_old != s_new
+        changed = touched[ch]
+        # a cell listed twice (crossed by several beams) changed once: keep one occurrence
+        _, first = np.unique(changed, return_index=True)
+        keep = np.zeros(len(changed), dtype=bool)
+        keep[first] = True
+        state_changed = changed[keep]
+        was_free = s_old[ch][keep] == FREE
+        is_free = s_new[ch][keep] == FREE
+        flip = was_free != is_free
+        safe_changed = self._spread(self._pad, state_changed[flip], np.where(is_free[flip], -1, 1).astype(np.int32))
+        # route blocking: occupied now, or ever held a return (with hit_floor); cells that
+        # faded to unknown after a return keep blocking routes, so routes do not flicker
+        rb_old = (s_old == OCCUPIED) | hit_old
+        rb_new = (s_new == OCCUPIED) | hit_new
+        rch = rb_old != rb_new
+        rcells, rfirst = np.unique(touched[rch], return_index=True)
+        route_changed = self._spread(self._route, rcells, np.where(rb_new[rch][rfirst], 1, -1).astype(np.int32))
+        return MapUpdate(state_changed, safe_changed, route_changed)

@@ -1,0 +1,129 @@
+"""Incremental safe areas against a rebuild from the same grid, on seeded random update sequences."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sanav_mj.mapping.incremental import IncrementalSafeAreas
+from sanav_mj.mapping.live_grid import LiveGrid
+from sanav_mj.mapping.occupancy import OccupancyGrid
+from sanav_mj.mapping.safe_areas import build_safe_areas, connectivity
+
+
+def _grid(occ, h=0.05, origin=(-1.0, 2.0)):
+    ny, nx = occ.shape
+    o = np.array(origin, dtype=float)
+    return OccupancyGrid(occupied=occ, resolution=h, origin=o, inflation=0.0,
+                         bounds=np.array([o[0], o[1], o[0] + nx * h, o[1] + ny * h]))
+
+
+def _paint(boxes, shape):
+    out = np.zeros(shape, dtype=np.int64)
+    for i0, j0, i1, j1 in boxes.tolist():
+        out[i0:i1, j0:j1] += 1
+    return out
+
+
+def _check(inc: IncrementalSafeAreas, occ: np.ndarray, min_cell: int):
+    grid = _grid(occ.copy(), h=inc.resolution, origin=inc.origin)
+    ref = build_safe_areas(grid, min_cell)
+    boxes, areas = inc.safe_areas()
+    # same free coverage as the rebuild's quadtree, no overlap, every rectangle free
+    paint = _paint(boxes, occ.shape)
+    assert paint.max(initial=0) <= 1
+    assert np.array_equal(paint, _paint(ref.boxes, occ.shape))
+    for i0, j0, i1, j1 in boxes.tolist():
+        assert not occ[i0:i1, j0:j1].any()
+    # the graph is exactly the touching pairs (connectivity() on the same boxes)
+    con = connectivity(boxes, grid.origin, grid.resolution)
+    assert np.array_equal(areas.edges, con.edges)
+    assert np.array_equal(areas.rects, con.rects)
+    np.testing.assert_allclose(areas.weights, con.weights, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(areas.portals, con.portals, rtol=0, atol=1e-12)
+    return ref, boxes
+
+
+def _blob(rng, shape, n_cells):
+    """Flat indices of a clustered random set of cells (like what one scan changes)."""
+    ny, nx = shape
+    ci, cj = rng.integers(0, ny), rng.integers(0, nx)
+    i = np.clip(ci + rng.normal(0, 6, n_cells).round().astype(int), 0, ny - 1)
+    j = np.clip(cj + rng.normal(0, 6, n_cells).round().astype(int), 0, nx - 1)
+    return i * nx + j
+
+
+@pytest.mark.parametrize("shape,min_cell,tile,seed", [
+    ((60, 90), 1, 8, 0),
+    ((60, 90), 1, 32, 1),
+    ((37, 101), 2, 16, 2),
+    ((64, 64), 1, 64, 3),
+    ((33, 47), 4, 8, 4),
+])
+def test_random_updates_match_rebuild(shape, min_cell, tile, seed):
+    rng = np.random.default_rng(seed)
+    occ = rng.random(shape) < 0.15
+    occ[10:20, 5:40] = True  # a wall
+    inc = IncrementalSafeAreas(_grid(occ.copy()), min_cell=min_cell, tile=tile)
+    ref, boxes = _check(inc, occ, min_cell)
+    n_ref, n_inc = [], []
+    for step in range(40):
+        cells = _blob(rng, shape, int(rng.integers(1, 300)))
+        if step % 3 == 0:  # clear an area (a scan sees free space)
+            occ.reshape(-1)[cells] = False
+        elif step % 3 == 1:  # new obstacles
+            occ.reshape(-1)[cells] = True
+        else:  # flip
+            occ.reshape(-1)[cells] ^= True
+        listed = np.concatenate([cells, rng.integers(0, occ.size, 20)])  # unchanged cells listed too
+        inc.update(occ, listed)
+        ref, boxes = _check(inc, occ, min_cell)
+        n_ref.append(len(ref.boxes))
+        n_inc.append(len(boxes))
+    # the local merge may leave more rectangles than a global one, but not wildly more
+    assert np.mean(n_inc) <= 2.0 * np.mean(n_ref)
+
+
+def test_no_change_is_a_no_op():
+    occ = np.zeros((20, 20), dtype=bool)
+    occ[5, 5] = True
+    inc = IncrementalSafeAreas(_grid(occ), tile=8)
+    before = inc.safe_areas()[0].copy()
+    assert inc.update(occ, [0, 1, 2, 105]) == 0
+    assert np.array_equal(inc.safe_areas()[0], before)
+
+
+def test_bad_arguments():
+    occ = np.zeros((20, 20), dtype=bool)
+    with pytest.raises(ValueError, match="tile"):
+        IncrementalSafeAreas(_grid(occ), tile=12)
+    with pytest.raises(ValueError, match="smallest quadtree leaf"):
+        IncrementalSafeAreas(_grid(occ), min_cell=5, tile=4)
+    inc = IncrementalSafeAreas(_grid(occ), tile=8)
+    with pytest.raises(ValueError, match="changed cells"):
+        inc.update(occ, [400])
+    with pytest.raises(ValueError, match="occupied"):
+        inc.update(occ[:10], [0])
+
+
+def test_driven_by_live_grid_scans():
+    """The live map's safe-cell changes feed the incremental areas; they match a rebuild."""
+    g = LiveGrid((0.0, 0.0, 6.0, 4.0), 0.05, 0.3)
+    inc = IncrementalSafeAreas(g.safe_grid(), tile=16)
+    angles = np.linspace(-2.356, 2.356, 271)
+    rng = np.random.default_rng(5)
+    room = (0.3, 0.3, 5.7, 3.7)
+    for step in range(12):
+        x, y, th = 0.8 + 0.35 * step, 2.0 + 0.3 * np.sin(step), 0.2 * step
+        a = th + angles
+        c, s = np.cos(a), np.sin(a)
+        with np.errstate(divide="ignore"):
+            tx = np.where(c > 0, (room[2] - x) / c, np.where(c < 0, (room[0] - x) / c, np.inf))
+            ty = np.where(s > 0, (room[3] - y) / s, np.where(s < 0, (room[1] - y) / s, np.inf))
+        t = np.minimum(tx, ty)
+        hit = t <= 4.0
+        r = np.where(hit, t + rng.normal(0, 0.02, len(t)), 4.0)
+        up = g.integrate((x, y), th, r, hit, angles)
+        inc.update(~g.safe(), up.safe_changed)
+        _check(inc, ~g.safe(), 1)
+    assert len(inc.safe_areas()[0]) > 0

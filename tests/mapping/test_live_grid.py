@@ -1,0 +1,245 @@
+"""The growing map: exact beam traversal, log-odds states, incremental safe grid vs recomputation."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sanav_mj.mapping.live_grid import (
+    FREE,
+    OCCUPIED,
+    UNKNOWN,
+    LiveGrid,
+    LiveGridConfig,
+    dilate_count,
+    inflation_offsets,
+    traverse,
+)
+
+
+def _crossed_reference(u0, v0, u1, v1):
+    """Cells whose open square the segment meets (Liang-Barsky clip, positive length), plus
+    the cells of the end points; plain loops over the bounding box."""
+    cells = {(math.floor(v0), math.floor(u0)), (math.floor(v1), math.floor(u1))}
+    for i in range(math.floor(min(v0, v1)) - 1, math.floor(max(v0, v1)) + 2):
+        for j in range(math.floor(min(u0, u1)) - 1, math.floor(max(u0, u1)) + 2):
+            t0, t1 = 0.0, 1.0
+            ok = True
+            for p, q0, lo, hi in ((u1 - u0, u0, j, j + 1), (v1 - v0, v0, i, i + 1)):
+                if p == 0:
+                    if not lo < q0 < hi:
+                        ok = False
+                    continue
+                a, b = (lo - q0) / p, (hi - q0) / p
+                t0, t1 = max(t0, min(a, b)), min(t1, max(a, b))
+            if ok and t1 > t0:
+                cells.add((i, j))
+    return cells
+
+
+def test_traverse_matches_reference_on_random_segments():
+    rng = np.random.default_rng(0)
+    n = 300
+    u0, v0 = rng.uniform(-5, 5, n), rng.uniform(-5, 5, n)
+    length = rng.uniform(0, 12, n)
+    ang = rng.uniform(-np.pi, np.pi, n)
+    u1, v1 = u0 + length * np.cos(ang), v0 + length * np.sin(ang)
+    beam, i, j = traverse(u0, v0, u1, v1)
+    for b in range(n):
+        got = list(zip(i[beam == b].tolist(), j[beam == b].tolist()))
+        assert len(got) == len(set(got)), b
+        assert set(got) == _crossed_reference(u0[b], v0[b], u1[b], v1[b]), b
+
+
+def test_crossed_cells_equal_traverse_inside_the_grid():
+    from sanav_mj.mapping.live_grid import crossed_cells
+
+    rng = np.random.default_rng(1)
+    ny, nx = 23, 37
+    n = 400
+    u0, v0 = rng.uniform(-10, 47, n), rng.uniform(-10, 33, n)  # many start outside the grid
+    length = rng.uniform(0, 40, n)
+    ang = rng.uniform(-np.pi, np.pi, n)
+    u1, v1 = u0 + length * np.cos(ang), v0 + length * np.sin(ang)
+    beam, i, j = traverse(u0, v0, u1, v1)
+    inside = (i >= 0) & (i < ny) & (j >= 0) & (j < nx)
+    got = crossed_cells(u0, v0, u1, v1, ny, nx)
+    assert got.min() >= 0 and got.max() < ny * nx
+    assert set(got.tolist()) == set((i * nx + j)[inside].tolist())
+    for b in range(0, n, 7):  # per segment too
+        one = crossed_cells(u0[b:b + 1], v0[b:b + 1], u1[b:b + 1], v1[b:b + 1], ny, nx)
+        sel = (beam == b) & inside
+        assert sorted(one.tolist()) == sorted((i * nx + j)[sel].tolist()), b
+
+
+def test_inflation_offsets_square_to_square_distance():
+    off = inflation_offsets(0.12, 0.05)
+    got = {tuple(o) for o in off.tolist()}
+    # gap(di, dj) = hypot(max(|di|-1,0), max(|dj|-1,0)) * 0.05 <= 0.12: |d| - 1 <= 2.4 along an axis
+    assert (3, 0) in got and (4, 0) not in got
+    assert (3, 2) in got  # gap hypot(2, 1) * 0.05 = 0.112
+    assert (3, 3) not in got  # gap hypot(2, 2) * 0.05 = 0.141
+    assert (0, 0) in got and len(got) == len({(-a, -b) for a, b in got} & got)
+
+
+def _room_scan(pose, angles, box, max_range):
+    """Noise-free ranges from inside an axis-aligned room [x0, x1] x [y0, y1]."""
+    x, y, th = pose
+    a = th + angles
+    c, s = np.cos(a), np.sin(a)
+    with np.errstate(divide="ignore"):
+        tx = np.where(c > 0, (box[2] - x) / c, np.where(c < 0, (box[0] - x) / c, np.inf))
+        ty = np.where(s > 0, (box[3] - y) / s, np.where(s < 0, (box[1] - y) / s, np.inf))
+    t = np.minimum(tx, ty)
+    hit = t <= max_range
+    return np.where(hit, t, max_range), hit
+
+
+def test_single_scan_states():
+    g = LiveGrid((0, 0, 4, 4), 0.1, 0.0)
+    assert np.all(g.states() == UNKNOWN)
+    # one beam along +x from (1.05, 2.05) hitting x = 3.02; one beam along +y with no return (max 1 m)
+    up = g.integrate((1.05, 2.05), 0.0, [1.97, 1.0], [True, False], [0.0, np.pi / 2])
+    st = g.states()
+    assert st[20, 30] == OCCUPIED
+    assert np.all(st[20, 10:30] == FREE)
+    assert np.all(st[20:31, 10] == FREE)  # 2.05 .. 3.05: rows 20 .. 30, nothing occupied
+    assert st[31, 10] == UNKNOWN
+    assert np.count_nonzero(st == FREE) == 20 + 10
+    assert np.count_nonzero(st == OCCUPIED) == 1
+    assert sorted(up.state_changed.tolist()) == sorted(np.flatnonzero(st.ravel() != UNKNOWN).tolist())
+    # inflation 0 still excludes the cells touching a non-free one (closed squares meet):
+    # a one-cell-wide line of free cells holds no safe cell
+    assert not g.safe().any() and up.safe_changed.size == 0
+
+
+def test_hit_needs_several_free_passes_and_unknown_between():
+    c = LiveGridConfig(hit_floor=None)
+    g = LiveGrid((0, 0, 4, 4), 0.1, 0.0, c)
+    g.integrate((0.55, 0.55), 0.0, [2.0], [True], [0.0])  # end cell (5, 25)
+    assert g.states()[5, 25] == OCCUPIED
+    passes = 0
+    while g.states()[5, 25] != FREE:
+        g.integrate((0.55, 0.55), 0.0, [3.0], [True], [0.0])
+        passes += 1
+        if g.states()[5, 25] == UNKNOWN:
+            assert not g.safe()[5, 25]
+    # from l_occ down to free_thresh in steps of l_free
+    assert passes == math.ceil((c.l_occ - c.free_thresh) / -c.l_free - 1e-9)
+
+
+def test_a_hit_cell_never_turns_free_again():
+    g = LiveGrid((0, 0, 4, 4), 0.1, 0.0)
+    g.integrate((0.55, 0.55), 0.0, [2.0], [True], [0.0])  # end cell (5, 25)
+    for _ in range(30):
+        g.integrate((0.55, 0.55), 0.0, [3.0], [True], [0.0])
+        assert g.states()[5, 25] != FREE
+    assert g.states()[5, 25] == UNKNOWN and g.log_odds[5, 25] == g.config.hit_floor
+    assert g.states()[5, 24] == FREE  # its never-hit neighbour on the beam is free
+    with pytest.raises(ValueError, match="hit_floor"):
+        LiveGridConfig(hit_floor=-0.5)
+
+
+def test_one_return_makes_a_well_seen_free_cell_unsafe():
+    g = LiveGrid((0, 0, 4, 4), 0.1, 0.0)
+    for _ in range(20):  # cell (5, 25) crossed 20 times: log-odds at the lower clamp
+        g.integrate((0.55, 0.55), 0.0, [3.0], [True], [0.0])
+    assert g.states()[5, 25] == FREE and g.log_odds[5, 25] == g.config.l_min
+    up = g.integrate((0.55, 0.55), 0.0, [2.0], [True], [0.0])  # one return in it
+    assert g.states()[5, 25] != FREE
+    assert 5 * 40 + 25 in up.state_changed.tolist()
+    with pytest.raises(ValueError, match="one return"):
+        LiveGridConfig(l_min=-2.0, l_occ=1.0)
+
+
+def test_sparse_and_dense_count_spreading_agree():
+    """The two ways of spreading count changes (per kernel offset / by row runs over the
+    bounding window) give the same counts and the same flipped cells."""
+    import copy
+
+    rng = np.random.default_rng(3)
+    g = LiveGrid((0, 0, 5.0, 3.0), 0.05, 0.33)
+    assert sum(2 * w + 1 for _, w in g._rows) == len(g._offsets)
+    nx = g.shape[1]
+    for _ in range(6):
+        k = int(rng.integers(1, 400))
+        cells = np.unique(rng.integers(0, g.shape[0] * nx, k))
+        ci, cj = np.divmod(cells, nx)
+        delta = rng.choice(np.array([-1, 1], dtype=np.int32), len(cells))
+        a, b = copy.deepcopy(g), copy.deepcopy(g)
+        fa = a._spread_sparse(a._pad, ci, cj, delta)
+        fb = b._spread_dense(b._pad, ci, cj, delta, int(ci.min()), int(ci.max()) + 1, int(cj.min()),
+                             int(cj.max()) + 1)
+        assert np.array_equal(a._pad, b._pad)
+        assert np.array_equal(np.sort(fa), np.sort(fb))
+        assert len(fa) > 0
+        g = a
+
+
+def _brute_safe(states, inflation, h):
+    ny, nx = states.shape
+    bad = np.argwhere(states != FREE)
+    out = np.zeros(states.shape, dtype=bool)
+    for i in range(ny):
+        for j in range(nx):
+            if states[i, j] != FREE:
+                continue
+            gi = np.maximum(np.abs(bad[:, 0] - i) - 1, 0)
+            gj = np.maximum(np.abs(bad[:, 1] - j) - 1, 0)
+            out[i, j] = not np.any(np.hypot(gi, gj) * h <= inflation + 1e-9)
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_incremental_safe_grid_equals_recomputation(seed):
+    """Random scans in a room with a moving inner wall (cells go free -> occupied -> free):
+    after every scan the incremental safe grid and the changed-cell lists are exact."""
+    rng = np.random.default_rng(seed)
+    h, infl = 0.1, 0.23
+    bounds = (0.0, 0.0, 6.05, 4.0)  # not a whole number of cells wide: last column straddles
+    g = LiveGrid(bounds, h, infl)
+    assert np.all(g.states()[:, -1] == OCCUPIED)
+    route_now = g.route_safe()
+    n_route = 0
+    angles = np.linspace(-2.3, 2.3, 181)
+    for step in range(25):
+        wall = rng.uniform(2.5, 5.9)
+        room = (0.2, 0.2, wall, 3.8)
+        pose = (rng.uniform(0.5, 2.3), rng.uniform(0.5, 3.5), rng.uniform(-np.pi, np.pi))
+        ranges, hit = _room_scan(pose, angles, room, max_range=rng.uniform(1.5, 6.0))
+        ranges = np.where(hit, ranges + rng.normal(0, 0.03, len(ranges)), ranges)
+        s_before, safe_before = g.states(), g.safe()
+        up = g.integrate(pose[:2], pose[2], ranges, hit, angles)
+        s_after, safe_after = g.states(), g.safe()
+        assert sorted(up.state_changed.tolist()) == np.flatnonzero((s_before != s_after).ravel()).tolist()
+        assert up.safe_changed.tolist() == np.flatnonzero((safe_before != safe_after).ravel()).tolist()
+        assert np.array_equal(g.blocked, dilate_count(s_after != FREE, inflation_offsets(infl, h)))
+        # the route grid: only occupied cells block (unknown is passable)
+        route_before = route_now
+        ever_hit = (g._floor == g.config.hit_floor).reshape(g.shape)
+        route_now = dilate_count((s_after == OCCUPIED) | ever_hit, inflation_offsets(infl, h)) == 0
+        assert np.array_equal(g.route_safe(), route_now)
+        assert up.route_changed.tolist() == np.flatnonzero((route_before != route_now).ravel()).tolist()
+        n_route += len(up.route_changed)
+        assert np.all(g.route_safe() | ~g.safe())  # safe implies route-safe
+        if step % 8 == 7:
+            assert np.array_equal(safe_after, _brute_safe(s_after, infl, h))
+    assert np.count_nonzero(g.safe()) > 100
+    assert n_route > 100
+
+
+def test_safe_grid_is_occupancy_grid_compatible():
+    from sanav_mj.mapping import build_safe_areas
+
+    g = LiveGrid((0, 0, 3, 3), 0.05, 0.1)
+    angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+    ranges, hit = _room_scan((1.5, 1.5, 0.0), angles, (0.3, 0.3, 2.7, 2.7), 10.0)
+    g.integrate((1.5, 1.5), 0.0, ranges, hit, angles)
+    sam = build_safe_areas(g.safe_grid())
+    r = sam.areas.rects
+    # every safe rectangle lies inside the room shrunk by the inflation (0.1 m) and a cell
+    assert len(r) >= 1
+    assert r[:, 0].min() >= 0.3 + 0.1 - 1e-9 and r[:, 2].max() <= 2.7 - 0.1 + 1e-9
+    assert r[:, 1].min() >= 0.3 + 0.1 - 1e-9 and r[:, 3].max() <= 2.7 - 0.1 + 1e-9

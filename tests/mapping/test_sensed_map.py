@@ -1,0 +1,91 @@
+"""SensedMap: scans at a measured pose -> safe areas equal to a rebuild; corridor invalidation."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sanav_mj.mapping.safe_areas import build_safe_areas
+from sanav_mj.mapping.sensed_map import SensedMap, SensedMapConfig
+
+
+def _scan(pose, offset, angles, boxes, room, max_range=6.0):
+    """Ranges from the sensor (at ``offset`` in the robot frame) to a room's walls and boxes."""
+    x, y, th = pose
+    sx = x + math.cos(th) * offset[0] - math.sin(th) * offset[1]
+    sy = y + math.sin(th) * offset[0] + math.cos(th) * offset[1]
+    a = th + angles
+    d = np.stack([np.cos(a), np.sin(a)], axis=1)
+    best = np.full(len(a), np.inf)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for bx in boxes:  # slab method, outside the boxes
+            t0 = np.maximum(np.minimum((bx[0] - sx) / d[:, 0], (bx[2] - sx) / d[:, 0]),
+                            np.minimum((bx[1] - sy) / d[:, 1], (bx[3] - sy) / d[:, 1]))
+            t1 = np.minimum(np.maximum((bx[0] - sx) / d[:, 0], (bx[2] - sx) / d[:, 0]),
+                            np.maximum((bx[1] - sy) / d[:, 1], (bx[3] - sy) / d[:, 1]))
+            ok = (t1 >= t0) & (t0 >= 0)
+            best = np.where(ok, np.minimum(best, t0), best)
+        tx = np.where(d[:, 0] > 0, (room[2] - sx) / d[:, 0], (room[0] - sx) / d[:, 0])
+        ty = np.where(d[:, 1] > 0, (room[3] - sy) / d[:, 1], (room[1] - sy) / d[:, 1])
+    best = np.minimum(best, np.minimum(tx, ty))
+    hit = best <= max_range
+    return np.where(hit, best, max_range), hit
+
+
+def test_scans_give_the_rebuilds_coverage_and_replan_test():
+    room = (0.0, 0.0, 8.0, 4.0)
+    offset = (0.12, 0.0)
+    sm = SensedMap(room, 0.3, offset)
+    angles = np.linspace(-2.356, 2.356, 361)
+    boxes = [(4.0, 1.5, 4.4, 2.5)]
+    for k in range(10):
+        pose = (0.8 + 0.2 * k, 2.0, 0.1 * math.sin(k))
+        r, hit = _scan(pose, offset, angles, boxes, room)
+        up = sm.integrate(pose, r, hit, angles)
+        ref = build_safe_areas(sm.grid.safe_grid())
+        paint = np.zeros(sm.grid.shape, dtype=int)
+        for i0, j0, i1, j1 in up.boxes.tolist():
+            paint[i0:i1, j0:j1] += 1
+        ref_paint = np.zeros(sm.grid.shape, dtype=int)
+        for i0, j0, i1, j1 in ref.boxes.tolist():
+            ref_paint[i0:i1, j0:j1] += 1
+        assert np.array_equal(paint, ref_paint) and paint.max() <= 1
+        assert set(up.timing_ms) == {"map", "areas", "snapshot", "route", "total"}
+        # route areas: the rebuild's coverage of the route grid (unknown passable)
+        route_ref = build_safe_areas(sm.grid.route_grid())
+        rp = np.zeros(sm.grid.shape, dtype=int)
+        for i0, j0, i1, j1 in up.route_boxes.tolist():
+            rp[i0:i1, j0:j1] += 1
+        rr = np.zeros(sm.grid.shape, dtype=int)
+        for i0, j0, i1, j1 in route_ref.boxes.tolist():
+            rr[i0:i1, j0:j1] += 1
+        assert np.array_equal(rp, rr) and rp.max() <= 1
+        assert np.all(rp[paint == 1] == 1)  # safe space is route space
+    # unexplored space (behind the box, in the blind sector behind the robot) is routable, not safe
+    assert rp.sum() > paint.sum()
+    assert up.areas.rects.shape[0] > 0
+    # the sensor offset is applied: the box's near face (x = 4.0) is occupied at its cell
+    st = sm.grid.states()
+    assert st[40, 80] == 2 and st[40, 78] == 1
+    # every rectangle handed out is still safe; a new obstacle inside one invalidates it
+    rects = up.areas.rects
+    assert sm.rects_still_safe(rects).all()
+    k = int(np.argmax((rects[:, 2] - rects[:, 0]) * (rects[:, 3] - rects[:, 1])))
+    cx, cy = 0.5 * (rects[k, 0] + rects[k, 2]), 0.5 * (rects[k, 1] + rects[k, 3])
+    pose = (cx - 1.0 - offset[0], cy, 0.0)
+    new_box = (cx - 0.05, cy - 0.05, cx + 0.05, cy + 0.05)
+    r, hit = _scan(pose, offset, angles, boxes + [new_box], room)
+    up2 = sm.integrate(pose, r, hit, angles)
+    assert up2.changed
+    still = sm.rects_still_safe(rects)
+    assert not still[k]
+    row = sm.grid.states()[int(cy / 0.05), int((cx - 0.1) / 0.05):int((cx + 0.1) / 0.05)]
+    assert np.any(row != 1)  # the new obstacle's face: one return made its cell non-free
+    # an unchanged scan changes nothing
+    up3 = sm.integrate(pose, r, hit, angles)
+    assert up3.boxes is up2.boxes or np.array_equal(up3.boxes, up2.boxes)
+    # without route areas
+    plain = SensedMap(room, 0.3, offset, SensedMapConfig(route=False))
+    upp = plain.integrate(pose, r, hit, angles)
+    assert upp.route_boxes is None and upp.route_areas is None and not upp.route_changed

@@ -1,0 +1,35 @@
+"""Smoke tests of the sensing benchmark scripts (small runs; no timing asserted)."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+
+
+def _load(name: str):
+    spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_bench_incremental_small_run(capsys):
+    mod = _load("bench_incremental")
+    assert mod.main(["--maps", "barn", "--scans", "3", "--tile", "16"]) == 0
+    out = capsys.readouterr().out
+    assert "barn: 300 x 100 cells" in out
+    for row in ("map update", "incremental update", "compact snapshot", "rebuild"):
+        assert row in out
+    assert mod.main(["--scans", "1"]) == 2
+
+
+def test_bench_sensing_one_scenario(capsys):
+    mod = _load("bench_sensing")
+    assert mod.main(["single_rect"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    row = lines[-1].split()
+    assert row[0] == "single_rect" and int(row[1]) > 50
+    assert float(row[-1]) == 0.0  # the lidar map's safe cells lie in the known map's free cells
+    assert mod.main(["no_such_scenario"]) == 2
