@@ -342,22 +342,47 @@ class SAMPC(TrackingMPC):
         dt = float(config.dt)
         adaptation = PlantAdaptation(robot, dt, limits.v_max, limits.w_max, limits.a_max,
                                      limits.lower(), limits.upper(), config.adaptation)
-        self.areas = areas
-        self._rects = np.asarray(areas.rects, dtype=float)
-        self.plan = plan
-        self.chain = CorridorChain.build(areas, plan.corridor, config.box_margin)
-        self.ref_states, self.ref_inputs, ref_area = _resample(plan.reference, dt)
-        # chain index (2 x corridor position) of each reference sample's area, -1 if off the corridor
-        pos = {int(a): 2 * i for i, a in enumerate(np.asarray(plan.corridor, int))}
-        self._ref_chain = np.array([pos.get(int(a), -1) for a in ref_area], dtype=int)
+        self._set_plan(areas, plan, config.box_margin, dt)
         self.penalty = SafeAreaPenalty(len(config.q_sa))
         ocp = build_tracking_ocp(config.horizon, dt, self.penalty, position_constraints=True)
         super().__init__(robot, config, limits, ocp, adaptation, failure_injector=failure_injector)
         self.position_slack = config.box_margin
         self._q_sa = np.asarray(config.q_sa, float)
-        self._sa_cache: dict[tuple[int, int], np.ndarray] = {}
         self.reset(np.array([*self.ref_states[0, :2], self.ref_states[0, 2]]))
         self.build_s = time.perf_counter() - t0
+
+    def _set_plan(self, areas: SafeAreas, plan: Plan, box_margin: float, dt: float) -> None:
+        self.areas = areas
+        self._rects = np.asarray(areas.rects, dtype=float)
+        self.plan = plan
+        self.chain = CorridorChain.build(areas, plan.corridor, box_margin)
+        self.ref_states, self.ref_inputs, ref_area = _resample(plan.reference, dt)
+        # chain index (2 x corridor position) of each reference sample's area, -1 if off the corridor
+        pos = {int(a): 2 * i for i, a in enumerate(np.asarray(plan.corridor, int))}
+        self._ref_chain = np.array([pos.get(int(a), -1) for a in ref_area], dtype=int)
+        self._sa_cache: dict[tuple[int, int], np.ndarray] = {}
+
+    def replace_plan(self, areas: SafeAreas, plan: Plan) -> None:
+        """Follow a new corridor and reference from now on (replanning in motion).
+
+        The episode state is kept: the previously applied input (rate bounds), the active
+        plan (warm start), the plant adaptation and the traction limit; the stage assignment
+        restarts cold on the new chain and the progress from the new reference's start (the
+        new plan starts at the current pose).
+
+        Args:
+            areas: the safe areas the new plan was made on.
+            plan: a successful plan (corridor of ``areas`` and reference).
+
+        Raises:
+            ValueError: the plan failed, has no reference, or its corridor is not a chain of
+                adjacent safe areas.
+        """
+        if not plan.ok or plan.reference is None or len(plan.reference) < 1:
+            raise ValueError(f"plan must be successful with a reference, got ok={plan.ok} reason={plan.reason!r}")
+        self._set_plan(areas, plan, self.config.box_margin, self.dt)
+        self._s_prev = None
+        self._ref_index = 0
 
     @property
     def monitor(self):

@@ -64,7 +64,9 @@ class Prepared:
 @dataclass
 class RunOutcome:
     """A finished run: its preparation, the episode, the ``run --json`` document and the
-    controller spec it ran with."""
+    controller spec it ran with; ``sensed`` is the
+    :class:`~sanav_mj.control.sensing.SensingSAMPC` of a lidar run (its map, records and
+    replans), None in map mode."""
 
     prepared: Prepared
     controller: str
@@ -72,6 +74,7 @@ class RunOutcome:
     episode: Episode
     document: dict[str, Any]
     spec: ControllerSpec = ControllerSpec()
+    sensed: Any = None
 
 
 def planner_config(robot, spec: ControllerSpec = ControllerSpec()) -> Any:
@@ -168,6 +171,7 @@ def run_scenario(
     run_config: RunConfig | None = None,
     controller_obj: Controller | None = None,
     controller_spec: ControllerSpec | None = None,
+    sensing: str = "map",
 ) -> RunOutcome:
     """Run one closed-loop episode of ``controller`` on a scenario and measure it.
 
@@ -186,9 +190,17 @@ def run_scenario(
         controller_spec: the controller and its settings (default:
             ``ControllerSpec(controller)``); its name must equal ``controller`` when both are
             given (``controller`` may then be left at its default).
+        sensing: ``"map"`` (the grid from the scenario's true geoms, planned once) or
+            ``"lidar"`` (the robot's lidar builds the map during the run and SA-MPC replans
+            on it, :class:`~sanav_mj.control.sensing.SensingSAMPC`; SA-MPC only). With
+            ``"lidar"`` the document gains ``"sensing"``, ``"map_update_ms"`` {mean, max,
+            p99}, ``"replans"`` and the ``p50`` / ``p99`` of ``pipeline_ms``; map-mode
+            documents are unchanged.
 
     Raises:
-        ValueError: unknown controller name, or ``controller_spec.name`` differs from ``controller``.
+        ValueError: unknown controller name, ``controller_spec.name`` differs from
+            ``controller``, unknown ``sensing``, or ``sensing="lidar"`` with a controller
+            other than SA-MPC.
     """
     from dataclasses import replace
 
@@ -206,6 +218,12 @@ def run_scenario(
     else:
         cspec = controller_spec
     controller = cspec.name
+    if sensing not in SENSING_MODES:
+        raise ValueError(f"sensing: expected one of {', '.join(SENSING_MODES)}, got {sensing!r}")
+    if sensing == "lidar" and controller != "sa-mpc":
+        raise ValueError(f"sensing lidar: supported for controller sa-mpc only, got {controller!r}")
+    if sensing == "lidar":
+        return _run_lidar(source, cspec, seed, yaw, resolution, mismatch, time_limit_s, rrd, run_config)
     if isinstance(source, Prepared):
         prep0 = source
         scenario = source.scenario
@@ -251,6 +269,68 @@ def run_scenario(
     if recorder is not None:
         recorder.finish(episode, doc)
     return RunOutcome(prep, controller, start, episode, doc, cspec)
+
+
+#: the ``sensing`` modes of :func:`run_scenario`.
+SENSING_MODES = ("map", "lidar")
+
+
+def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, resolution: float,
+               mismatch: Mismatch, time_limit_s: float, rrd: Path | None,
+               run_config: RunConfig | None) -> RunOutcome:
+    """One SA-MPC run on the map the robot's lidar builds (see :func:`run_scenario`)."""
+    from dataclasses import replace
+
+    from sanav_mj.control.sensing import SensingConfig, SensingSAMPC
+    from sanav_mj.eval.metrics import episode_json, safe_area_violations, timing_stats
+    from sanav_mj.mapping.sensed_map import SensedMapConfig
+    from sanav_mj.sim.lidar import Lidar, lidar_config
+    from sanav_mj.sim.mismatch import mismatched_model
+    from sanav_mj.sim.plant import Plant
+    from sanav_mj.sim.runner import run_episode
+
+    if isinstance(source, Prepared):
+        scenario, resolution = source.scenario, source.grid.resolution
+    else:
+        scenario = source if isinstance(source, Scenario) else load_scenario(source)
+    start = initial_pose(scenario, seed, yaw)
+    model = mismatched_model(scenario, mismatch) if mismatch.physical else None
+    plant = Plant(scenario, model=model)
+    lcfg = lidar_config(plant.model)
+    lidar = Lidar(plant.model, scenario.obstacles, lcfg)
+    lidar_rng = np.random.default_rng([seed, 16])
+    inflation = scenario.robot.footprint_radius + DEFAULT_MARGIN_M
+    cspec_b = cspec.with_solve_budget(mismatch.solve_budget_ms)
+    ctrl = SensingSAMPC(scenario.robot, scenario.bounds, scenario.goal, inflation, lcfg.offset,
+                        cspec_b.sa_mpc, planner_config(scenario.robot, cspec_b),
+                        SensingConfig(map=SensedMapConfig(resolution=resolution)))
+    cfg = replace(run_config or RunConfig(), time_limit_s=time_limit_s)
+    rng = np.random.default_rng(seed + 1)
+    # The recorder and the JSON's map fields need a Prepared; with lidar it holds the empty
+    # map's areas until the run has built its own (replaced below).
+    from sanav_mj.mapping import MapConfig, build_map
+    from sanav_mj.planning.reference import Plan as _Plan
+
+    empty = build_map((), scenario.bounds, inflation, MapConfig(resolution=resolution))
+    episode = run_episode(plant, ctrl, start, scenario.goal, cfg, mismatch, rng,
+                          on_step=None, scan=lambda: lidar.scan(plant.data, lidar_rng),
+                          scan_period_s=lcfg.period)
+    doc = episode_json(episode, scenario=scenario.name, controller=cspec.name, seed=seed, start=start,
+                       goal=scenario.goal, rects=None, mismatch=mismatch.changed(), setup_ms=0.0)
+    poses = episode.trace.poses()
+    doc["safe_area_violations"] = int(sum(
+        safe_area_violations(poses[k:k + 1, :2], r.corridor_rects)
+        for k, r in enumerate(ctrl.records[:len(poses)]) if len(r.corridor_rects)))
+    doc["pipeline_ms"] = timing_stats(episode.trace.pipeline_ms)
+    doc["sensing"] = "lidar"
+    mu = timing_stats(ctrl.map_update_ms)
+    doc["map_update_ms"] = {"mean": mu["mean"], "max": mu["max"], "p99": mu["p99"]}
+    doc["replans"] = int(ctrl.replans)
+    none = np.zeros((0, 2))
+    prep = Prepared(scenario, empty, ctrl.mpc.plan if ctrl.mpc is not None else _Plan(
+        ok=False, reason="no_path", corridor=np.zeros(0, int), goal=scenario.goal, waypoints=none,
+        path=none, smoothed=none, reference=None), {})
+    return RunOutcome(prep, cspec.name, start, episode, doc, cspec, sensed=ctrl)
 
 
 #: controllers that track the planned route: their ``stuck`` rule measures progress along it.

@@ -76,6 +76,8 @@ class EpisodeTrace:
         predicted: (N+1, 3) predicted states or None.
         rect_ids: (N+1,) safe-area ids assigned to the horizon or None.
         margins: (N+1,) [m] constraint slack of the horizon or None.
+        scan_ms: [ms] lidar cast wall time per step (0 on steps without a scan); empty
+            when the run does not sense.
     """
 
     t: list[float] = field(default_factory=list)
@@ -95,6 +97,7 @@ class EpisodeTrace:
     predicted: list[np.ndarray | None] = field(default_factory=list)
     rect_ids: list[np.ndarray | None] = field(default_factory=list)
     margins: list[np.ndarray | None] = field(default_factory=list)
+    scan_ms: list[float] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -146,6 +149,8 @@ def run_episode(
     measurement_fault: Callable[[int, np.ndarray], np.ndarray] | None = None,
     on_step: Callable[[int, EpisodeTrace], None] | None = None,
     route: np.ndarray | None = None,
+    scan: Callable[[], object] | None = None,
+    scan_period_s: float | None = None,
 ) -> Episode:
     """Run one closed-loop episode.
 
@@ -167,6 +172,13 @@ def run_episode(
             measures progress along it (:class:`~sanav_mj.sim.termination.RouteProgress`),
             else as the reduction of the straight-line distance to the goal (see
             :mod:`sanav_mj.sim.termination`).
+        scan: optional ``f() -> scan`` that casts the robot's lidar in the current physics
+            state (``sanav_mj.sim.lidar.Lidar.scan`` bound to the plant's data and a seeded
+            generator); the scan is passed to the controller in ``Observation.scan``, at most
+            once per control step, at the sensor's rate ``1 / scan_period_s`` (with the
+            default ``None`` period: every step). Its wall time is part of ``pipeline_ms``
+            (and kept in ``trace.scan_ms``).
+        scan_period_s: [s] time between scans.
 
     Returns:
         The :class:`Episode` with its trace.
@@ -189,6 +201,7 @@ def run_episode(
     success = False
     wall0 = time.perf_counter()
     step = 0
+    next_scan = -math.inf
     for step in range(rules.max_steps):
         t = plant.time
         true_pose = plant.pose()
@@ -207,15 +220,24 @@ def run_episode(
         else:
             bad_streak = 0
             last_valid = meas.copy()
+        scan_ms = 0.0
+        sensed = None
+        if scan is not None and t >= next_scan - 1e-9:
+            t_scan = time.perf_counter()
+            sensed = scan()
+            scan_ms = (time.perf_counter() - t_scan) * 1e3
+            next_scan = t + (scan_period_s or 0.0) if next_scan == -math.inf else max(
+                next_scan + (scan_period_s or 0.0), t)
         obs = Observation(
             t=t,
             pose=meas,
             velocity=plant.body_velocity(),
             ranges=plant.ray_ranges(config.n_rays, config.ray_range_m) if controller.needs_ranges else None,
+            scan=sensed,
         )
         t0 = time.perf_counter()
         cmd: Command = controller.step(obs)
-        pipeline_ms = (time.perf_counter() - t0) * 1e3
+        pipeline_ms = (time.perf_counter() - t0) * 1e3 + scan_ms
         v, w = float(cmd.v), float(cmd.w)
         if not (math.isfinite(v) and math.isfinite(w)):
             v, w = 0.0, 0.0
@@ -241,6 +263,8 @@ def run_episode(
         trace.wheel_speed.append(plant.wheel_speeds())
         trace.solve_ms.append(float(cmd.solve_ms))
         trace.pipeline_ms.append(pipeline_ms)
+        if scan is not None:
+            trace.scan_ms.append(scan_ms)
         trace.status.append(cmd.status)
         trace.ok.append(bool(cmd.ok))
         trace.clearance.append(plant.clearance())
