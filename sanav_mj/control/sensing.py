@@ -164,6 +164,7 @@ class SensingSAMPC:
         self._since_plan = 0
         self._grown = False
         self._turn_steps = 0
+        self._turn_w = 0.0
         self._mpc_fresh = True
         if self.mpc is not None:
             self.mpc.reset(np.asarray(pose, dtype=float).reshape(3))
@@ -196,13 +197,13 @@ class SensingSAMPC:
             self._route_areas = up.route_areas
             self._grown = self._grown or changed
         self._since_plan += 1
-        reason = self._replan_reason(changed)
+        reason = self._replan_reason(changed, pose)
         replan_ms = 0.0
         replanned = None
         if reason is not None and np.all(np.isfinite(pose)):
             t0 = time.perf_counter()
             if self._replan(pose):
-                replanned = "initial" if self.mpc is not None and self._mpc_fresh and reason == "initial" else reason
+                replanned = reason
             replan_ms = (time.perf_counter() - t0) * 1e3
         if self.mpc is None:
             cmd = self._scan_turn(obs)
@@ -211,11 +212,15 @@ class SensingSAMPC:
         self.records.append(StepRecord(map_ms, replanned, replan_ms, self._corridor_rects.copy(), changed))
         return cmd
 
-    def _replan_reason(self, changed: bool) -> str | None:
-        if self._areas is None:
+    def _replan_reason(self, changed: bool, pose: np.ndarray) -> str | None:
+        if self._areas is None or not np.all(np.isfinite(pose)):
             return None
         if self.mpc is None or self.local_goal is None:
-            return "initial"
+            # the first plan waits until the robot's own position is observed safe (or the
+            # turn on the spot has lasted its limit: the planner then projects the start)
+            turned_out = self._turn_steps * self.dt >= self.config.max_scan_turn_s
+            safe_here = bool(self.map.grid.safe_at(self._cells(pose[None, :2]))[0])
+            return "initial" if safe_here or turned_out else None
         if changed and len(self._corridor_rects) and not self.map.rects_still_safe(self._corridor_rects).all():
             return "blocked"
         if self.route is not None and self._route_areas is not None and not self._route_clear():
@@ -273,12 +278,13 @@ class SensingSAMPC:
 
     def _follow(self, plan: Plan, pose: np.ndarray) -> None:
         areas = self._areas
+        u_prev = np.array([0.0, self._turn_w])
         if self.mpc is None:
             self.mpc = SAMPC(self.robot, areas, plan, self.mpc_config)
-            self.mpc.reset(pose)
+            self.mpc.reset(pose, u_prev=u_prev)
         elif self._mpc_fresh:
             self.mpc.replace_plan(areas, plan)
-            self.mpc.reset(pose)
+            self.mpc.reset(pose, u_prev=u_prev)
         else:
             self.mpc.replace_plan(areas, plan)
         self._mpc_fresh = False
@@ -287,5 +293,8 @@ class SensingSAMPC:
     def _scan_turn(self, obs: Observation) -> Command:
         """Turn on the spot (the body stays in the disc it occupies) to see around the robot."""
         self._turn_steps += 1
-        w = 0.0 if self._turn_steps * self.dt > self.config.max_scan_turn_s else self.config.scan_turn_rate
+        target = 0.0 if self._turn_steps * self.dt > self.config.max_scan_turn_s else self.config.scan_turn_rate
+        step = self.robot.alpha_max * self.dt  # within the yaw-rate rate bound of the MPC that follows
+        w = float(np.clip(target, self._turn_w - step, self._turn_w + step))
+        self._turn_w = w
         return Command(v=0.0, w=w, solve_ms=0.0, status="scan_turn", ok=True)
