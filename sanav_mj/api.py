@@ -208,6 +208,7 @@ def run_scenario(
     resolution: float = 0.05,
     time_limit_s: float = 60.0,
     rrd: str | Path | None = None,
+    sensing: str = "map",
 ) -> RunResult:
     """Map, plan and drive one closed-loop episode in MuJoCo, like ``sanav-mj run``.
 
@@ -223,12 +224,19 @@ def run_scenario(
         resolution: [m] grid cell edge (0.005 to 1.0).
         time_limit_s: [s] simulated time after which the run ends with ``timeout`` (> 0).
         rrd: write a rerun recording of the run to this path.
+        sensing: ``"map"`` (the grid from the scenario's true geoms) or ``"lidar"`` (the
+            robot knows only what its lidar has seen; SA-MPC only; docs/sensing.md). A lidar
+            run's document gains ``"sensing"``, ``"map_update_ms"`` and ``"replans"``.
 
     Returns:
         A :class:`RunResult`; ``to_dict()`` is the ``run --json`` document.
     """
     if controller not in CONTROLLER_NAMES:
         raise ValueError(f"controller: expected one of {', '.join(CONTROLLER_NAMES)}, got {controller!r}")
+    if sensing not in ("map", "lidar"):
+        raise ValueError(f"sensing: expected 'map' or 'lidar', got {sensing!r}")
+    if sensing == "lidar" and controller != "sa-mpc":
+        raise ValueError(f"sensing: 'lidar' is supported for controller 'sa-mpc' only, got controller {controller!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= 2**31 - 1:
         raise ValueError(f"seed: expected an integer 0 <= seed < 2**31, got {seed!r}")
     if yaw is not None and (isinstance(yaw, bool) or not isinstance(yaw, (int, float)) or not math.isfinite(yaw)):
@@ -246,5 +254,6 @@ def run_scenario(
         mismatch=_mismatch(mismatch),
         time_limit_s=float(time_limit_s),
         rrd=None if rrd is None else Path(rrd),
+        sensing=sensing,
     )
     return RunResult(document=out.document, episode=out.episode, prepared=out.prepared, start=out.start)

@@ -152,6 +152,8 @@ def build_parser() -> argparse.ArgumentParser:
     controller_help = "controller: sa-mpc (the paper's), mpc (obstacle-penalty NMPC), dwa, dqn (default: %(default)s)"
     workers_help = "worker processes, 1..64 (default: %(default)s)"
     # (the metavars name the unit: M metres, S seconds, RAD radians, N a count)
+    sensing_help = ("map: the grid from the scenario's true geoms; lidar: the robot maps with its own lidar "
+                    "as it drives (sa-mpc only) (default: %(default)s)")
     resume_help = ("keep the finished runs journalled in OUT/runs.jsonl (same settings) and run the rest "
                    "(default: start afresh)")
 
@@ -159,6 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", type=_output_arg("--out"), default=Path("out/demo"), metavar="DIR",
                    help="output folder (default: %(default)s)")
     d.add_argument("--no-rrd", action="store_true", help="skip the rerun recordings (default: write them)")
+    d.add_argument("--sensing", choices=SENSING, default="map", help=sensing_help)
 
     a = sub.add_parser("areas", help="grid, quadtree, safe areas, graph and reference of a scenario")
     a.add_argument("scenario", help=scenario_help)
@@ -180,6 +183,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--plot", type=_plot_arg, metavar="FILE", help="write a figure of the run here; format from the extension: "
                                                   ".png (also without one), .pdf, .svg, ... (default: none)")
     r.add_argument("--mismatch", nargs="+", default=[], metavar="KEY=VALUE", help=mismatch_help())
+    r.add_argument("--sensing", choices=SENSING, default="map", help=sensing_help)
     r.add_argument("--time-limit", type=_time_limit, default=60.0, metavar="S",
                    help=f"simulated time limit [s], 0 < S <= {MAX_TIME_LIMIT_S:g} (default: %(default)s)")
 
@@ -194,6 +198,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="output folder (default: %(default)s)")
     b.add_argument("--rrd", action="store_true", help="also record each run to OUT/rrd/ (default: no)")
     b.add_argument("--resume", action="store_true", help=resume_help)
+    b.add_argument("--sensing", choices=SENSING, default="map", help=sensing_help)
     b.add_argument("--ray", nargs="?", const=True, default=None, metavar="ADDRESS",
                    type=_ray_address, help=RAY_HELP)
 
@@ -215,6 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
     rb.add_argument("--out", type=_output_arg("--out"), default=Path("out/robustness"), metavar="DIR",
                     help="output folder (default: %(default)s)")
     rb.add_argument("--resume", action="store_true", help=resume_help)
+    rb.add_argument("--sensing", choices=SENSING, default="map", help=sensing_help)
     rb.add_argument("--ray", nargs="?", const=True, default=None, metavar="ADDRESS",
                    type=_ray_address, help=RAY_HELP)
     return p
@@ -313,6 +319,17 @@ def _check_outputs(named: dict[str, Path | None]) -> None:
             raise BadInput(f"{name} {path}: cannot write in {folder} (permission denied)")
 
 
+#: the ``--sensing`` choices
+SENSING = ("map", "lidar")
+
+
+def _check_sensing(sensing: str, controllers: list[str], option: str = "--controller") -> None:
+    """``--sensing lidar`` runs SA-MPC only; any other controller is bad input (exit 2)."""
+    other = [c for c in controllers if c != "sa-mpc"]
+    if sensing == "lidar" and other:
+        raise BadInput(f"--sensing lidar: supported for the sa-mpc controller only, got {option} {' '.join(other)}")
+
+
 def _cmd_areas(args) -> int:
     from sanav_mj.eval.episode import areas_document, prepare
 
@@ -345,6 +362,7 @@ def _cmd_run(args) -> int:
     from sanav_mj.sim.mismatch import parse_mismatch
 
     mismatch = parse_mismatch(args.mismatch)
+    _check_sensing(args.sensing, [args.controller])
     outputs = {"--json": args.json, "--rrd": args.rrd, "--plot": args.plot}
     _distinct_outputs(outputs)
     _check_outputs(outputs)
@@ -356,6 +374,7 @@ def _cmd_run(args) -> int:
         resolution=args.resolution,
         mismatch=mismatch,
         time_limit_s=args.time_limit,
+        sensing=args.sensing,
     )
     doc = out.document
 
@@ -418,6 +437,10 @@ def run_line(doc: dict) -> str:
             parts.append(f"{label} {doc[key]}")
     if doc.get("mismatch"):
         parts.append("mismatch " + " ".join(f"{k}={_num(v)}" for k, v in doc["mismatch"].items()))
+    if doc.get("sensing") == "lidar":
+        mu, pipe = doc.get("map_update_ms") or {}, doc.get("pipeline_ms") or {}
+        parts.append(f"lidar: {doc.get('replans')} replans, map update {mu.get('mean', float('nan')):.2f} ms mean, "
+                     f"pipeline {pipe.get('mean', float('nan')):.2f} ms mean / {pipe.get('p99', float('nan')):.2f} ms p99")
     solve = doc.get("solve_ms") or {}
     if doc.get("steps") and solve.get("mean") is not None:
         parts.append(f"solve {solve['mean']:.2f} ms mean / {solve.get('p99', float('nan')):.2f} ms p99")
@@ -428,7 +451,7 @@ def _cmd_demo(args) -> int:
     from sanav_mj.eval.demo import run_demo, summary_table
 
     _check_out_dir(args.out)
-    result = run_demo(args.out, record=not args.no_rrd)
+    result = run_demo(args.out, record=not args.no_rrd, sensing=args.sensing)
     print(summary_table(result.rows), end="")
     kinds = "recordings (.rrd), plots (.png) and JSON" if not args.no_rrd else "plots (.png) and JSON (no recordings: --no-rrd)"
     print(f"wrote {kinds} to {args.out}/" if not result.failed else
@@ -443,10 +466,11 @@ def _cmd_demo(args) -> int:
 def _cmd_bench(args) -> int:
     from sanav_mj.eval.bench import markdown_table, run_bench
 
+    _check_sensing(args.sensing, args.controllers, "--controllers")
     _check_scenarios(args.scenarios)
     _check_out_dir(args.out)
     summary = run_bench(args.scenarios, args.controllers, args.runs, args.workers, args.out, record=args.rrd,
-                        resume=args.resume, ray=args.ray)
+                        resume=args.resume, ray=args.ray, sensing=args.sensing)
     print(markdown_table(summary), end="")
     print(f"wrote {args.out}/results.csv, table.md, success.png")
     return _raised_runs(summary, args.out / "results.csv")
@@ -488,6 +512,7 @@ def _cmd_robustness(args) -> int:
 
     sweep = parse_sweep(args.sweep)
     fixed = _parse_fixed(args.fixed, sweep)
+    _check_sensing(args.sensing, [args.controller])
     _check_scenarios(args.scenarios)
     _check_out_dir(args.out)
     default = " (the default; choose with --sweep KEY=V1,V2,...)" if args.sweep == list(DEFAULT_SWEEP) else ""
@@ -495,7 +520,8 @@ def _cmd_robustness(args) -> int:
     print(f"robustness: sweeping {grid}{default}, {args.seeds} seed(s) per point and scenario, controller "
           f"{args.controller}" + (f", fixed {' '.join(args.fixed)}" if args.fixed else ""), flush=True)
     summary = run_robustness(args.scenarios, sweep, args.seeds, args.controller, args.workers, args.out,
-                             time_limit_s=args.time_limit, fixed=fixed, resume=args.resume, ray=args.ray)
+                             time_limit_s=args.time_limit, fixed=fixed, resume=args.resume, ray=args.ray,
+                             sensing=args.sensing)
     for row in summary:  # a quantity with no value (NaN: no run ran, or none has a clearance) is n/a
         print("  ".join(f"{k}={'n/a' if math.isnan(v) else format(v, '.3g')}" if isinstance(v, float) else f"{k}={v}"
                         for k, v in row.items()))

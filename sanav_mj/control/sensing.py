@@ -130,6 +130,8 @@ class SensingSAMPC:
         records: one :class:`StepRecord` per step.
         route: (P, 2) [m] the latest route to the goal, or None.
         local_goal: (2,) [m] the goal of the corridor being followed, or None.
+        plan_boxes: (R, 4) int64 cell boxes of the safe areas the current plan was made on
+            (``mpc.areas``).
     """
 
     name = "sa-mpc"
@@ -156,6 +158,8 @@ class SensingSAMPC:
         """Start a new episode at ``pose`` (3,) [m, m, rad] with an empty map."""
         self.map = SensedMap(self.bounds, self.inflation, self.sensor_offset, self.config.map)
         self._areas: SafeAreas | None = None
+        self._boxes = np.zeros((0, 4), dtype=np.int64)
+        self.plan_boxes = self._boxes
         self._route_areas: SafeAreas | None = None
         self._corridor_rects = np.zeros((0, 4))
         self.route: np.ndarray | None = None
@@ -194,6 +198,7 @@ class SensingSAMPC:
             map_ms = (time.perf_counter() - t0) * 1e3
             changed = up.changed or up0.changed
             self._areas = up.areas
+            self._boxes = up.boxes
             self._route_areas = up.route_areas
             self._grown = self._grown or changed
         self._since_plan += 1
@@ -289,6 +294,7 @@ class SensingSAMPC:
             self.mpc.replace_plan(areas, plan)
         self._mpc_fresh = False
         self._corridor_rects = np.asarray(areas.rects, dtype=float)[np.asarray(plan.corridor, int)]
+        self.plan_boxes = self._boxes
 
     def _scan_turn(self, obs: Observation) -> Command:
         """Turn on the spot (the body stays in the disc it occupies) to see around the robot."""

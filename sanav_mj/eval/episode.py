@@ -306,12 +306,6 @@ def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, reso
                         SensingConfig(map=SensedMapConfig(resolution=resolution)))
     cfg = replace(run_config or RunConfig(), time_limit_s=time_limit_s)
     rng = np.random.default_rng(seed + 1)
-    # The recorder and the JSON's map fields need a Prepared; with lidar it holds the empty
-    # map's areas until the run has built its own (replaced below).
-    from sanav_mj.mapping import MapConfig, build_map
-    from sanav_mj.planning.reference import Plan as _Plan
-
-    empty = build_map((), scenario.bounds, inflation, MapConfig(resolution=resolution))
     episode = run_episode(plant, ctrl, start, scenario.goal, cfg, mismatch, rng,
                           on_step=None, scan=lambda: lidar.scan(plant.data, lidar_rng),
                           scan_period_s=lcfg.period)
@@ -326,11 +320,26 @@ def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, reso
     mu = timing_stats(ctrl.map_update_ms)
     doc["map_update_ms"] = {"mean": mu["mean"], "max": mu["max"], "p99": mu["p99"]}
     doc["replans"] = int(ctrl.replans)
-    none = np.zeros((0, 2))
-    prep = Prepared(scenario, empty, ctrl.mpc.plan if ctrl.mpc is not None else _Plan(
-        ok=False, reason="no_path", corridor=np.zeros(0, int), goal=scenario.goal, waypoints=none,
-        path=none, smoothed=none, reference=None), {})
+    prep = _sensed_prepared(scenario, ctrl)
     return RunOutcome(prep, cspec.name, start, episode, doc, cspec, sensed=ctrl)
+
+
+def _sensed_prepared(scenario: Scenario, ctrl) -> Prepared:
+    """The :class:`Prepared` of a lidar run, for plots and recordings: the grid and quadtree
+    of the safe map at the end of the run, the safe areas and plan of the last plan (a failed
+    plan when the robot never planned)."""
+    from dataclasses import replace
+
+    from sanav_mj.mapping.safe_areas import build_safe_areas
+    from sanav_mj.planning.reference import Plan as _Plan
+
+    final = build_safe_areas(ctrl.map.grid.safe_grid())
+    if ctrl.mpc is None:
+        none = np.zeros((0, 2))
+        plan = _Plan(ok=False, reason="no_path", corridor=np.zeros(0, int), goal=scenario.goal, waypoints=none,
+                     path=none, smoothed=none, reference=None)
+        return Prepared(scenario, final, plan, {})
+    return Prepared(scenario, replace(final, boxes=ctrl.plan_boxes, areas=ctrl.mpc.areas), ctrl.mpc.plan, {})
 
 
 #: controllers that track the planned route: their ``stuck`` rule measures progress along it.

@@ -189,6 +189,7 @@ def run_robustness(
     fixed: Mismatch = Mismatch(),
     resume: bool = False,
     ray: str | bool | Any = None,
+    sensing: str = "map",
 ) -> list[dict[str, Any]]:
     """Run the sweep and write CSVs and heat maps into ``out``.
 
@@ -209,6 +210,7 @@ def run_robustness(
         ray: run on Ray instead of the process pool, as in
             :func:`sanav_mj.eval.bench.run_bench` (True: a local Ray; an address: a cluster;
             None: the pool of ``workers``); the rows, outputs and journal are the same.
+        sensing: ``"map"`` or ``"lidar"`` for every run (lidar: SA-MPC only).
 
     Returns:
         One summary row per grid point pooled over the scenarios (``scenario`` =
@@ -246,11 +248,13 @@ def run_robustness(
                 tags = ((xk, x),) + (((yk, y),) if yk else ()) + (("_cell", (yi, xi)),)
                 for s in scenarios:
                     for k in range(seeds):
-                        yield Job(s, controller, k, items, time_limit_s, None, tags)
+                        yield Job(s, controller, k, items, time_limit_s, None, tags, sensing)
 
     jobs = JobSet(make_jobs, len(yv) * len(xv) * len(scenarios) * seeds)
     with campaign_executor(ray) as executor:
         meta = {"command": "robustness", **run_metadata(scenarios, [controller], seeds, workers, time_limit_s)}
+        if sensing != "map":
+            meta["sensing"] = sensing
         meta["sweep"] = {k: [_value(k, v) for v in vals] for k, vals in sweep}
         meta["fixed"] = dict(base)
         meta["executor"] = describe(ray)
