@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -172,6 +172,7 @@ def run_scenario(
     controller_obj: Controller | None = None,
     controller_spec: ControllerSpec | None = None,
     sensing: str = "map",
+    on_step: Callable[[int, Any], None] | None = None,
 ) -> RunOutcome:
     """Run one closed-loop episode of ``controller`` on a scenario and measure it.
 
@@ -195,7 +196,10 @@ def run_scenario(
             on it, :class:`~sanav_mj.control.sensing.SensingSAMPC`; SA-MPC only). With
             ``"lidar"`` the document gains ``"sensing"``, ``"map_update_ms"`` {mean, max,
             p99}, ``"replans"`` and the ``p50`` / ``p99`` of ``pipeline_ms``; map-mode
-            documents are unchanged.
+            documents are unchanged. ``controller_obj`` may then be a
+            :class:`~sanav_mj.control.sensing.SensingSAMPC` built by the caller.
+        on_step: optional ``f(step, trace)`` called after each control step (see
+            :func:`sanav_mj.sim.runner.run_episode`), after the recorder's.
 
     Raises:
         ValueError: unknown controller name, ``controller_spec.name`` differs from
@@ -223,7 +227,8 @@ def run_scenario(
     if sensing == "lidar" and controller != "sa-mpc":
         raise ValueError(f"sensing lidar: supported for controller sa-mpc only, got {controller!r}")
     if sensing == "lidar":
-        return _run_lidar(source, cspec, seed, yaw, resolution, mismatch, time_limit_s, rrd, run_config)
+        return _run_lidar(source, cspec, seed, yaw, resolution, mismatch, time_limit_s, run_config,
+                          controller_obj, on_step)
     if isinstance(source, Prepared):
         prep0 = source
         scenario = source.scenario
@@ -253,7 +258,7 @@ def run_scenario(
             cspec, prep.scenario, prep.grid, prep.areas, prep.plan, solve_budget_ms=mismatch.solve_budget_ms
         )
         episode = run_episode(plant, ctrl, start, scenario.goal, cfg, mismatch, rng,
-                              on_step=recorder.log_step if recorder else None,
+                              on_step=_chain(recorder.log_step if recorder else None, on_step),
                               route=planned_route(prep.plan, scenario.goal) if controller in ROUTE_FOLLOWERS else None)
     doc = episode_json(
         episode,
@@ -275,15 +280,42 @@ def run_scenario(
 SENSING_MODES = ("map", "lidar")
 
 
+def _chain(first, second):
+    """One ``on_step`` hook calling ``first`` then ``second`` (either may be None)."""
+    if first is None or second is None:
+        return first if second is None else second
+
+    def both(step, trace):
+        first(step, trace)
+        second(step, trace)
+
+    return both
+
+
+def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(), resolution: float = 0.05,
+                     mismatch: Mismatch = Mismatch()):
+    """The :class:`~sanav_mj.control.sensing.SensingSAMPC` a lidar run of ``scenario`` uses:
+    the known-map mode's inflation (footprint radius + :data:`DEFAULT_MARGIN_M`), the lidar
+    offset of the robot file, the planner matched to the MPC, the grid ``resolution`` [m]."""
+    from sanav_mj.control.sensing import SensingConfig, SensingSAMPC
+    from sanav_mj.mapping.sensed_map import SensedMapConfig
+    from sanav_mj.sim.lidar import lidar_config
+
+    lcfg = lidar_config(scenario.model)
+    inflation = scenario.robot.footprint_radius + DEFAULT_MARGIN_M
+    spec = cspec.with_solve_budget(mismatch.solve_budget_ms)
+    return SensingSAMPC(scenario.robot, scenario.bounds, scenario.goal, inflation, lcfg.offset,
+                        spec.sa_mpc, planner_config(scenario.robot, spec),
+                        SensingConfig(map=SensedMapConfig(resolution=resolution)))
+
+
 def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, resolution: float,
-               mismatch: Mismatch, time_limit_s: float, rrd: Path | None,
-               run_config: RunConfig | None) -> RunOutcome:
+               mismatch: Mismatch, time_limit_s: float, run_config: RunConfig | None,
+               controller_obj=None, on_step=None) -> RunOutcome:
     """One SA-MPC run on the map the robot's lidar builds (see :func:`run_scenario`)."""
     from dataclasses import replace
 
-    from sanav_mj.control.sensing import SensingConfig, SensingSAMPC
     from sanav_mj.eval.metrics import episode_json, safe_area_violations, timing_stats
-    from sanav_mj.mapping.sensed_map import SensedMapConfig
     from sanav_mj.sim.lidar import Lidar, lidar_config
     from sanav_mj.sim.mismatch import mismatched_model
     from sanav_mj.sim.plant import Plant
@@ -299,15 +331,11 @@ def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, reso
     lcfg = lidar_config(plant.model)
     lidar = Lidar(plant.model, scenario.obstacles, lcfg)
     lidar_rng = np.random.default_rng([seed, 16])
-    inflation = scenario.robot.footprint_radius + DEFAULT_MARGIN_M
-    cspec_b = cspec.with_solve_budget(mismatch.solve_budget_ms)
-    ctrl = SensingSAMPC(scenario.robot, scenario.bounds, scenario.goal, inflation, lcfg.offset,
-                        cspec_b.sa_mpc, planner_config(scenario.robot, cspec_b),
-                        SensingConfig(map=SensedMapConfig(resolution=resolution)))
+    ctrl = controller_obj if controller_obj is not None else lidar_controller(scenario, cspec, resolution, mismatch)
     cfg = replace(run_config or RunConfig(), time_limit_s=time_limit_s)
     rng = np.random.default_rng(seed + 1)
     episode = run_episode(plant, ctrl, start, scenario.goal, cfg, mismatch, rng,
-                          on_step=None, scan=lambda: lidar.scan(plant.data, lidar_rng),
+                          on_step=on_step, scan=lambda: lidar.scan(plant.data, lidar_rng),
                           scan_period_s=lcfg.period)
     doc = episode_json(episode, scenario=scenario.name, controller=cspec.name, seed=seed, start=start,
                        goal=scenario.goal, rects=None, mismatch=mismatch.changed(), setup_ms=0.0)
