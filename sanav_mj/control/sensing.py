@@ -4,9 +4,10 @@
 brings a scan (``Observation.scan``):
 
 1. **Map update.** The scan is added to a :class:`~sanav_mj.mapping.sensed_map.SensedMap`
-   at the pose the controller *measures* (pose noise acts on the map), after the robot's
-   own footprint disc is observed free (:meth:`SensedMap.clear_footprint`: the lidar ahead
-   of the axle never sees the cells under the robot). The safe areas (observed free space,
+   at the pose the controller *measures* (pose noise acts on the map); before the first
+   plan, and whenever the robot's own cell is not safe, the robot's footprint disc is
+   first observed free (:meth:`SensedMap.clear_footprint`: the lidar ahead of the axle
+   never sees the cells under the robot). The safe areas (observed free space,
    no occupied or unknown cell within the inflation radius) and the route areas (unknown
    counts as passable) are updated incrementally.
 2. **Replan check.** Corridor and reference are recomputed from the measured pose when
@@ -67,6 +68,10 @@ class SensingConfig:
     Attributes:
         replan_interval: [steps] smallest number of control steps between two ``extend``
             replans (a growing map alone does not replan every step), >= 1.
+        beam_stride: [beams] add every ``beam_stride``-th beam of a scan to the map (1: all);
+            fewer beams halve the map update's work, at the price of gaps between far beams
+            that later scans fill (safety is unaffected: fewer observations mean less known
+            free space, never more), integer >= 1.
         scan_turn_rate: [rad/s] yaw rate of the turn on the spot before the first plan, > 0.
         max_scan_turn_s: [s] give up turning after this long (the run then ends as stuck
             or timed out without a plan), > 0.
@@ -74,6 +79,7 @@ class SensingConfig:
     """
 
     replan_interval: int = 5
+    beam_stride: int = 1
     scan_turn_rate: float = 1.0
     max_scan_turn_s: float = 8.0
     map: SensedMapConfig = field(default_factory=SensedMapConfig)
@@ -82,6 +88,8 @@ class SensingConfig:
         if isinstance(self.replan_interval, bool) or not isinstance(self.replan_interval, int) \
                 or self.replan_interval < 1:
             raise ValueError(f"SensingConfig.replan_interval: expected an integer >= 1, got {self.replan_interval!r}")
+        if isinstance(self.beam_stride, bool) or not isinstance(self.beam_stride, int) or self.beam_stride < 1:
+            raise ValueError(f"SensingConfig.beam_stride: expected an integer >= 1, got {self.beam_stride!r}")
         for name in ("scan_turn_rate", "max_scan_turn_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -193,10 +201,13 @@ class SensingSAMPC:
         changed = False
         if obs.scan is not None and np.all(np.isfinite(pose)):
             t0 = time.perf_counter()
-            up0 = self.map.clear_footprint(pose, self.robot.footprint_radius)
-            up = self.map.integrate(pose, obs.scan.ranges, obs.scan.hit, obs.scan.angles)
+            changed = False
+            if self.mpc is None or not self.map.grid.safe_at(self._cells(pose[None, :2]))[0]:
+                changed = self.map.clear_footprint(pose, self.robot.footprint_radius).changed
+            k = self.config.beam_stride
+            up = self.map.integrate(pose, obs.scan.ranges[::k], obs.scan.hit[::k], obs.scan.angles[::k])
             map_ms = (time.perf_counter() - t0) * 1e3
-            changed = up.changed or up0.changed
+            changed = up.changed or changed
             self._areas = up.areas
             self._boxes = up.boxes
             self._route_areas = up.route_areas
