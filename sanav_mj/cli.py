@@ -163,15 +163,35 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--no-rrd", action="store_true", help="skip the rerun recordings (default: write them)")
     d.add_argument("--sensing", choices=SENSING, default="map", help=sensing_help)
 
-    a = sub.add_parser("areas", help="grid, quadtree, safe areas, graph and reference of a scenario")
-    a.add_argument("scenario", help=scenario_help)
+    map_help = scenario_help + ", or a ROS map_server map (.yaml) with --start and --goal"
+    start_help = "start pose x [m] y [m] yaw [rad] on a ROS map (.yaml) (default: none)"
+    goal_help = "goal x [m] y [m] on a ROS map (.yaml) (default: none)"
+
+    sc = sub.add_parser("scenario", help="make a scenario MJCF from a ROS map_server map with a start and a goal")
+    sc.add_argument("map", help="ROS map_server map: a YAML file naming a PGM or PNG image")
+    sc.add_argument("--start", type=_float_arg("--start"), nargs=3, required=True, metavar=("X", "Y", "YAW"),
+                    help="start pose x [m] y [m] yaw [rad] (required)")
+    sc.add_argument("--goal", type=_float_arg("--goal"), nargs=2, required=True, metavar=("X", "Y"),
+                    help="goal x [m] y [m] (required)")
+    sc.add_argument("-o", "--out", type=_output_arg("--out"), required=True, metavar="FILE",
+                    help="the scenario MJCF file to write (required)")
+
+    a = sub.add_parser("areas", help="grid, quadtree, safe areas, graph and reference of a scenario or ROS map")
+    a.add_argument("scenario", help=scenario_help + ", or a ROS map_server map (.yaml; with --start and "
+                                                    "--goal also the corridor and reference)")
+    a.add_argument("--start", type=_float_arg("--start"), nargs=3, default=None, metavar=("X", "Y", "YAW"),
+                   help=start_help)
+    a.add_argument("--goal", type=_float_arg("--goal"), nargs=2, default=None, metavar=("X", "Y"), help=goal_help)
     a.add_argument("--json", type=_output_arg("--json"), metavar="FILE", help="write the areas JSON here (default: none)")
     a.add_argument("--plot", type=_plot_arg, metavar="FILE", help="write a figure of the map here; format from the extension: "
                                                   ".png (also without one), .pdf, .svg, ... (default: none)")
     a.add_argument("--resolution", type=_resolution, default=0.05, metavar="M", help=resolution_help)
 
     r = sub.add_parser("run", help="one closed-loop run")
-    r.add_argument("scenario", help=scenario_help)
+    r.add_argument("scenario", help=map_help)
+    r.add_argument("--start", type=_float_arg("--start"), nargs=3, default=None, metavar=("X", "Y", "YAW"),
+                   help=start_help)
+    r.add_argument("--goal", type=_float_arg("--goal"), nargs=2, default=None, metavar=("X", "Y"), help=goal_help)
     r.add_argument("--controller", choices=CONTROLLERS, default="sa-mpc", help=controller_help)
     r.add_argument("--seed", type=_count("--seed", 0, 2**31 - 1), default=0, metavar="N",
                    help="seed of the initial yaw, noise and jitter, 0..2^31-1 (default: %(default)s)")
@@ -330,13 +350,59 @@ def _check_sensing(sensing: str, controllers: list[str], option: str = "--contro
         raise BadInput(f"--sensing lidar: supported for the sa-mpc controller only, got {option} {' '.join(other)}")
 
 
+def _scenario_of(args):
+    """The scenario argument: a path or name as given, or the Scenario made from a ROS map
+    with ``--start`` / ``--goal`` (both required then; both refused for an MJCF scenario)."""
+    from sanav_mj.eval.maps import is_ros_map, scenario_from_ros_map
+
+    given = [o for o, v in (("--start", args.start), ("--goal", args.goal)) if v is not None]
+    if not is_ros_map(args.scenario):
+        if given:
+            raise BadInput(f"{' and '.join(given)}: only for a ROS map (.yaml); {args.scenario} is a scenario "
+                           "with its own start and goal")
+        return args.scenario
+    missing = [o for o in ("--start", "--goal") if o not in given]
+    if missing:
+        raise BadInput(f"{args.scenario}: a ROS map needs {' and '.join(missing)} to make a scenario")
+    return scenario_from_ros_map(args.scenario, args.start, args.goal)
+
+
+def _cmd_scenario(args) -> int:
+    from sanav_mj.eval.maps import is_ros_map, ros_scenario_xml, scenario_from_ros_map
+    from sanav_mj.outputs import write_text
+
+    if not is_ros_map(args.map):
+        raise BadInput(f"{args.map}: expected a ROS map_server map (.yaml)")
+    _check_outputs({"--out": args.out})
+    sc = scenario_from_ros_map(args.map, args.start, args.goal)  # checks start and goal first
+    xml = ros_scenario_xml(args.map, args.start, args.goal)
+    write_text(args.out, xml)
+    print(f"{args.out}: scenario {sc.name} from {args.map}, {len(sc.obstacles)} obstacles, workspace "
+          f"{sc.bounds[2] - sc.bounds[0]:.2f} x {sc.bounds[3] - sc.bounds[1]:.2f} m")
+    return 0
+
+
 def _cmd_areas(args) -> int:
     from sanav_mj.eval.episode import areas_document, prepare
+    from sanav_mj.eval.maps import is_ros_map, ros_areas_document
 
     outputs = {"--json": args.json, "--plot": args.plot}
     _distinct_outputs(outputs)
     _check_outputs(outputs)
-    prep = prepare(args.scenario, resolution=args.resolution)
+    if is_ros_map(args.scenario) and args.start is None and args.goal is None:
+        if args.plot is not None:
+            raise BadInput("--plot: a ROS map is plotted with its corridor; give --start and --goal")
+        doc = ros_areas_document(args.scenario)
+        t = doc["timing_ms"]
+        try:
+            print(f"{doc['scenario']}: grid {doc['grid']['shape'][1]}x{doc['grid']['shape'][0]} @ "
+                  f"{doc['grid']['resolution']} m (the map's), leaves {doc['leaves']['free']} free / "
+                  f"{doc['leaves']['occupied']} occupied, {len(doc['rects'])} safe areas, {len(doc['edges'])} edges, "
+                  f"{t['total']:.2f} ms")
+        finally:
+            _write_outputs([(args.json, lambda: _write_json(args.json, doc))])
+        return 0
+    prep = prepare(_scenario_of(args), resolution=args.resolution)
     doc = areas_document(prep)
 
     def plot() -> None:
@@ -367,7 +433,7 @@ def _cmd_run(args) -> int:
     _distinct_outputs(outputs)
     _check_outputs(outputs)
     out = run_scenario(
-        args.scenario,
+        _scenario_of(args),
         controller=args.controller,
         seed=args.seed,
         yaw=args.yaw,
@@ -545,6 +611,7 @@ def main(argv: list[str] | None = None) -> int:
             return int(exc.code or 0)
         handler = {
             "areas": _cmd_areas,
+            "scenario": _cmd_scenario,
             "run": _cmd_run,
             "demo": _cmd_demo,
             "bench": _cmd_bench,
