@@ -441,6 +441,7 @@ def _cmd_run(args) -> int:
         mismatch=mismatch,
         time_limit_s=args.time_limit,
         sensing=args.sensing,
+        record_sensing=args.rrd is not None,
     )
     doc = out.document
 

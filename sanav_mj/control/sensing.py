@@ -140,6 +140,8 @@ class SensingSAMPC:
         local_goal: (2,) [m] the goal of the corridor being followed, or None.
         plan_boxes: (R, 4) int64 cell boxes of the safe areas the current plan was made on
             (``mpc.areas``).
+        last_scan: the scan of the last step (None without one).
+        areas: the current safe areas (None before the first scan).
     """
 
     name = "sa-mpc"
@@ -173,6 +175,7 @@ class SensingSAMPC:
         self.route: np.ndarray | None = None
         self.local_goal: np.ndarray | None = None
         self.records: list[StepRecord] = []
+        self.last_scan = None
         self._since_plan = 0
         self._grown = False
         self._turn_steps = 0
@@ -181,6 +184,11 @@ class SensingSAMPC:
         if self.mpc is not None:
             self.mpc.reset(np.asarray(pose, dtype=float).reshape(3))
             self._mpc_fresh = True
+
+    @property
+    def areas(self) -> SafeAreas | None:
+        """The current safe areas (observed free space), None before the first scan."""
+        return self._areas
 
     @property
     def replans(self) -> int:
@@ -197,6 +205,7 @@ class SensingSAMPC:
     def step(self, obs: Observation) -> Command:
         """Map update, replan when needed, SA-MPC solve (see the module docstring)."""
         pose = np.asarray(obs.pose, dtype=float).reshape(3)
+        self.last_scan = obs.scan
         map_ms = None
         changed = False
         if obs.scan is not None and np.all(np.isfinite(pose)):

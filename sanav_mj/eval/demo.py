@@ -59,7 +59,7 @@ def run_demo(out: Path, record: bool = True, seed: int = 0, sensing: str = "map"
 
     out.mkdir(parents=True, exist_ok=True)
     for name in tqdm(builtin_scenarios(), desc="demo", unit="scenario", dynamic_ncols=True):
-        outcome = run_scenario(name, seed=seed, sensing=sensing)
+        outcome = run_scenario(name, seed=seed, sensing=sensing, record_sensing=record)
         doc = outcome.document
         js, png, areas, rrd = (out / f"{name}.json", out / f"{name}.png", out / f"{name}_areas.png",
                                out / f"{name}.rrd")

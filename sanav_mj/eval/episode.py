@@ -66,7 +66,8 @@ class RunOutcome:
     """A finished run: its preparation, the episode, the ``run --json`` document and the
     controller spec it ran with; ``sensed`` is the
     :class:`~sanav_mj.control.sensing.SensingSAMPC` of a lidar run (its map, records and
-    replans), None in map mode."""
+    replans), None in map mode; ``sensing_log`` its :class:`SensingLog` when kept
+    (``record_sensing=True``, or ``rrd`` given)."""
 
     prepared: Prepared
     controller: str
@@ -75,6 +76,7 @@ class RunOutcome:
     document: dict[str, Any]
     spec: ControllerSpec = ControllerSpec()
     sensed: Any = None
+    sensing_log: SensingLog | None = None
 
 
 def planner_config(robot, spec: ControllerSpec = ControllerSpec()) -> Any:
@@ -173,6 +175,7 @@ def run_scenario(
     controller_spec: ControllerSpec | None = None,
     sensing: str = "map",
     on_step: Callable[[int, Any], None] | None = None,
+    record_sensing: bool = False,
 ) -> RunOutcome:
     """Run one closed-loop episode of ``controller`` on a scenario and measure it.
 
@@ -200,6 +203,9 @@ def run_scenario(
             :class:`~sanav_mj.control.sensing.SensingSAMPC` built by the caller.
         on_step: optional ``f(step, trace)`` called after each control step (see
             :func:`sanav_mj.sim.runner.run_episode`), after the recorder's.
+        record_sensing: (lidar) keep the scans, map frames and safe areas of the run in
+            ``RunOutcome.sensing_log`` for a recording made afterwards (always when ``rrd``
+            is given).
 
     Raises:
         ValueError: unknown controller name, ``controller_spec.name`` differs from
@@ -228,7 +234,7 @@ def run_scenario(
         raise ValueError(f"sensing lidar: supported for controller sa-mpc only, got {controller!r}")
     if sensing == "lidar":
         return _run_lidar(source, cspec, seed, yaw, resolution, mismatch, time_limit_s, run_config,
-                          controller_obj, on_step)
+                          controller_obj, on_step, rrd, record_sensing or rrd is not None)
     if isinstance(source, Prepared):
         prep0 = source
         scenario = source.scenario
@@ -276,6 +282,72 @@ def run_scenario(
     return RunOutcome(prep, controller, start, episode, doc, cspec)
 
 
+@dataclass
+class SensingLog:
+    """What a lidar run saw, step by step, for recordings (collected outside the timed step).
+
+    Attributes:
+        scan_points: per step, the (K, 2) [m] world positions of the scan's returns as the
+            robot placed them (at its measured pose), or None on a step without a scan.
+        map_frames: (step, states) pairs: the (ny, nx) int8 unknown / free / occupied states
+            of the sensed grid, kept when they changed, at most every ``every`` steps (and at
+            the last step).
+        area_frames: (step, rects (R, 4) [m]) pairs: the safe areas when they changed, on
+            the same schedule, and at every replan.
+        origin: (2,) [m] grid origin; resolution: [m] cell edge.
+        every: [steps] the frame schedule.
+    """
+
+    origin: np.ndarray
+    resolution: float
+    every: int = 5
+    scan_points: list[np.ndarray | None] = field(default_factory=list)
+    map_frames: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    area_frames: list[tuple[int, np.ndarray]] = field(default_factory=list)
+
+    def hook(self, ctrl, offset) -> Callable[[int, Any], None]:
+        """The runner's ``on_step`` hook for the :class:`SensingSAMPC` ``ctrl`` whose lidar sits
+        at ``offset`` (2,) [m] in the base frame."""
+        last_frame = [-10**9]
+        last_states: list[np.ndarray | None] = [None]
+        ox, oy = float(offset[0]), float(offset[1])
+
+        def on_step(step: int, trace) -> None:
+            scan = ctrl.last_scan
+            if scan is None:
+                self.scan_points.append(None)
+            else:
+                x, y, yaw = (float(v) for v in trace.measured[step])
+                c, s_ = np.cos(yaw), np.sin(yaw)
+                sx, sy = x + c * ox - s_ * oy, y + s_ * ox + c * oy
+                hit = np.asarray(scan.hit, bool)
+                r = np.asarray(scan.ranges, float)[hit]
+                a = yaw + np.asarray(scan.angles, float)[hit]
+                self.scan_points.append(np.column_stack((sx + r * np.cos(a), sy + r * np.sin(a))))
+            rec = ctrl.records[step]
+            due = step - last_frame[0] >= self.every
+            if due or rec.replan is not None:
+                states = ctrl.map.grid.states()
+                if last_states[0] is None or not np.array_equal(states, last_states[0]):
+                    self.map_frames.append((step, states))
+                    last_states[0] = states
+                if ctrl.areas is not None:
+                    self.area_frames.append((step, np.asarray(ctrl.areas.rects, float).copy()))
+                last_frame[0] = step
+
+        return on_step
+
+    def close(self, ctrl, steps: int) -> None:
+        """Add the final map and safe areas (after step ``steps - 1``) when they differ."""
+        if steps <= 0:
+            return
+        states = ctrl.map.grid.states()
+        if not self.map_frames or not np.array_equal(states, self.map_frames[-1][1]):
+            self.map_frames.append((steps - 1, states))
+        if ctrl.areas is not None and (not self.area_frames or self.area_frames[-1][0] != steps - 1):
+            self.area_frames.append((steps - 1, np.asarray(ctrl.areas.rects, float).copy()))
+
+
 #: the ``sensing`` modes of :func:`run_scenario`.
 SENSING_MODES = ("map", "lidar")
 
@@ -311,7 +383,7 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
 
 def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, resolution: float,
                mismatch: Mismatch, time_limit_s: float, run_config: RunConfig | None,
-               controller_obj=None, on_step=None) -> RunOutcome:
+               controller_obj=None, on_step=None, rrd: Path | None = None, record: bool = False) -> RunOutcome:
     """One SA-MPC run on the map the robot's lidar builds (see :func:`run_scenario`)."""
     from dataclasses import replace
 
@@ -334,8 +406,10 @@ def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, reso
     ctrl = controller_obj if controller_obj is not None else lidar_controller(scenario, cspec, resolution, mismatch)
     cfg = replace(run_config or RunConfig(), time_limit_s=time_limit_s)
     rng = np.random.default_rng(seed + 1)
+    log = SensingLog(origin=ctrl.map.grid.origin.copy(), resolution=ctrl.map.grid.resolution) if record else None
+    hook = _chain(log.hook(ctrl, lcfg.offset) if log is not None else None, on_step)
     episode = run_episode(plant, ctrl, start, scenario.goal, cfg, mismatch, rng,
-                          on_step=on_step, scan=lambda: lidar.scan(plant.data, lidar_rng),
+                          on_step=hook, scan=lambda: lidar.scan(plant.data, lidar_rng),
                           scan_period_s=lcfg.period)
     doc = episode_json(episode, scenario=scenario.name, controller=cspec.name, seed=seed, start=start,
                        goal=scenario.goal, rects=None, mismatch=mismatch.changed(), setup_ms=0.0)
@@ -349,7 +423,14 @@ def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, reso
     doc["map_update_ms"] = {"mean": mu["mean"], "max": mu["max"], "p99": mu["p99"]}
     doc["replans"] = int(ctrl.replans)
     prep = _sensed_prepared(scenario, ctrl)
-    return RunOutcome(prep, cspec.name, start, episode, doc, cspec, sensed=ctrl)
+    if log is not None:
+        log.close(ctrl, episode.steps)
+    out = RunOutcome(prep, cspec.name, start, episode, doc, cspec, sensed=ctrl, sensing_log=log)
+    if rrd is not None:
+        from sanav_mj.record import record_episode
+
+        record_episode(rrd, out)
+    return out
 
 
 def _sensed_prepared(scenario: Scenario, ctrl) -> Prepared:
