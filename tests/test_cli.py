@@ -537,3 +537,46 @@ def test_demo_output_that_fails_is_one_line_after_the_table(tmp_path, capsys, mo
     code, out, err = _run(["demo", "--out", str(tmp_path)], capsys)
     assert code == 2 and "| u_shape | goal |" in out
     assert err == f"sanav-mj: error: {tmp_path / 'u_shape.rrd'}: cannot write (No space left on device)\n"
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["bench", "single_rect", "--sensing", "lidar"], "--sensing lidar"),  # default controllers: all four
+    (["robustness", "single_rect", "--sensing", "lidar", "--controller", "mpc"], "--controller mpc"),
+    (["run", "single_rect", "--sensing", "lidar", "--controller", "dqn"], "sa-mpc"),
+    (["run", "single_rect", "--sensing", "sonar"], "--sensing"),
+    (["demo", "--sensing", "both"], "--sensing"),
+])
+def test_sensing_option_bad_input_exit_2_one_line(argv, fragment, capsys, tmp_path):
+    code, out, err = _run(argv + (["--out", str(tmp_path / "o")] if argv[0] in ("bench", "robustness", "demo")
+                                  else []), capsys)
+    assert code == 2 and err.count("\n") == 1 and fragment in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_bench_and_robustness_pass_sensing_to_every_run(tmp_path, capsys, monkeypatch):
+    from sanav_mj.eval import bench, robustness
+
+    seen = []
+
+    def fake(jobs, workers, desc, **kw):
+        jobs = list(jobs)
+        seen.extend(jobs)
+        return [{**_fake_doc(j), "sensing": j.sensing, "replans": 2,
+                 "map_update_ms": {"mean": 1.0, "max": 2.0, "p99": 2.0}} for j in jobs]
+
+    monkeypatch.setattr(bench, "run_jobs", fake)
+    monkeypatch.setattr(robustness, "run_jobs", fake)
+    code, _, err = _run(["bench", "single_rect", "--controllers", "sa-mpc", "--runs", "2", "--sensing", "lidar",
+                         "--out", str(tmp_path / "b")], capsys)
+    assert code == 0, err
+    code, _, err = _run(["robustness", "single_rect", "--seeds", "1", "--sweep", "delay=0,1", "--sensing", "lidar",
+                         "--out", str(tmp_path / "r")], capsys)
+    assert code == 0, err
+    assert len(seen) == 4 and {j.sensing for j in seen} == {"lidar"}
+    for folder in ("b", "r"):
+        assert json.loads((tmp_path / folder / "meta.json").read_text())["sensing"] == "lidar"
+    # map-mode journal keys are unchanged; lidar keys say so
+    from sanav_mj.eval.campaign import Job, job_key
+
+    assert job_key(Job("u_shape", "sa-mpc", 0)) == '["u_shape","sa-mpc",0,[],60.0]'
+    assert job_key(Job("u_shape", "sa-mpc", 0, sensing="lidar")) == '["u_shape","sa-mpc",0,[],60.0,"lidar"]'
