@@ -227,7 +227,8 @@ class SensingSAMPC:
         replanned = None
         if reason is not None and np.all(np.isfinite(pose)):
             t0 = time.perf_counter()
-            if self._replan(pose):
+            speed = float(obs.velocity[0]) if obs.velocity is not None and np.isfinite(obs.velocity[0]) else 0.0
+            if self._replan(pose, max(0.0, speed)):
                 replanned = reason
             replan_ms = (time.perf_counter() - t0) * 1e3
         if self.mpc is None:
@@ -265,8 +266,9 @@ class SensingSAMPC:
     def _route_clear(self) -> bool:
         return bool(self.map.grid.route_safe_at(self._cells(self.route)).all())
 
-    def _replan(self, pose: np.ndarray) -> bool:
-        """Plan route and local corridor from ``pose``; True when the MPC follows a new plan."""
+    def _replan(self, pose: np.ndarray, speed: float = 0.0) -> bool:
+        """Plan route and local corridor from ``pose`` with the reference starting at the
+        measured forward ``speed`` [m/s]; True when the MPC follows a new plan."""
         route_plan = make_plan(self._route_areas, pose, self.goal, self.robot, self.planner) \
             if self._route_areas is not None else None
         if route_plan is not None and route_plan.ok and route_plan.reference is not None:
@@ -277,7 +279,8 @@ class SensingSAMPC:
         target = self._local_goal(route)
         if target is None:
             return False
-        local = make_plan(self._areas, pose, target, self.robot, self.planner)
+        local = make_plan(self._areas, pose, target, self.robot, self.planner,
+                          start_speed=speed if self.mpc is not None else 0.0)
         if not local.ok or local.reference is None or len(local.corridor) == 0:
             return False
         self._follow(local, pose)
