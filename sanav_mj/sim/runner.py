@@ -76,8 +76,6 @@ class EpisodeTrace:
         predicted: (N+1, 3) predicted states or None.
         rect_ids: (N+1,) safe-area ids assigned to the horizon or None.
         margins: (N+1,) [m] constraint slack of the horizon or None.
-        scan_ms: [ms] lidar cast wall time per step (0 on steps without a scan); empty
-            when the run does not sense.
     """
 
     t: list[float] = field(default_factory=list)
@@ -97,7 +95,6 @@ class EpisodeTrace:
     predicted: list[np.ndarray | None] = field(default_factory=list)
     rect_ids: list[np.ndarray | None] = field(default_factory=list)
     margins: list[np.ndarray | None] = field(default_factory=list)
-    scan_ms: list[float] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -176,8 +173,7 @@ def run_episode(
             state (``sanav_mj.sim.lidar.Lidar.scan`` bound to the plant's data and a seeded
             generator); the scan is passed to the controller in ``Observation.scan``, at most
             once per control step, at the sensor's rate ``1 / scan_period_s`` (with the
-            default ``None`` period: every step). Its wall time is part of ``pipeline_ms``
-            (and kept in ``trace.scan_ms``).
+            default ``None`` period: every step). Its wall time is part of ``pipeline_ms``.
         scan_period_s: [s] time between scans.
 
     Returns:
@@ -263,8 +259,6 @@ def run_episode(
         trace.wheel_speed.append(plant.wheel_speeds())
         trace.solve_ms.append(float(cmd.solve_ms))
         trace.pipeline_ms.append(pipeline_ms)
-        if scan is not None:
-            trace.scan_ms.append(scan_ms)
         trace.status.append(cmd.status)
         trace.ok.append(bool(cmd.ok))
         trace.clearance.append(plant.clearance())
