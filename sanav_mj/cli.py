@@ -170,11 +170,11 @@ def build_parser() -> argparse.ArgumentParser:
     sc = sub.add_parser("scenario", help="make a scenario MJCF from a ROS map_server map with a start and a goal")
     sc.add_argument("map", help="ROS map_server map: a YAML file naming a PGM or PNG image")
     sc.add_argument("--start", type=_float_arg("--start"), nargs=3, required=True, metavar=("X", "Y", "YAW"),
-                    help="start pose x [m] y [m] yaw [rad] (required)")
+                    help="start pose x [m] y [m] yaw [rad] (required, no default)")
     sc.add_argument("--goal", type=_float_arg("--goal"), nargs=2, required=True, metavar=("X", "Y"),
-                    help="goal x [m] y [m] (required)")
+                    help="goal x [m] y [m] (required, no default)")
     sc.add_argument("-o", "--out", type=_output_arg("--out"), required=True, metavar="FILE",
-                    help="the scenario MJCF file to write (required)")
+                    help="the scenario MJCF file to write (required, no default)")
 
     a = sub.add_parser("areas", help="grid, quadtree, safe areas, graph and reference of a scenario or ROS map")
     a.add_argument("scenario", help=scenario_help + ", or a ROS map_server map (.yaml; with --start and "

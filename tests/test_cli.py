@@ -212,7 +212,7 @@ def test_run_result_is_printed_and_kept_when_an_output_fails(tmp_path, capsys):
 def test_an_os_error_mid_way_is_one_line(tmp_path, monkeypatch, capsys):
     from sanav_mj.eval import demo
 
-    def full_disk(out, record):  # raised by run_demo itself (not an output it notes)
+    def full_disk(out, record, sensing="map"):  # raised by run_demo itself (not an output it notes)
         raise OSError(28, "No space left on device", "out/demo/u_shape.json")
 
     monkeypatch.setattr(demo, "run_demo", full_disk)
@@ -513,7 +513,7 @@ def test_demo_without_recordings_does_not_say_it_wrote_them(tmp_path, capsys, mo
 
     seen = {}
 
-    def fake(out, record):
+    def fake(out, record, sensing="map"):
         seen["record"] = record
         return demo.DemoResult(rows=[{k: v for k, v in _doc().items()}])
 
@@ -529,7 +529,7 @@ def test_demo_without_recordings_does_not_say_it_wrote_them(tmp_path, capsys, mo
 def test_demo_output_that_fails_is_one_line_after_the_table(tmp_path, capsys, monkeypatch):
     from sanav_mj.eval import demo
 
-    def fake(out, record):
+    def fake(out, record, sensing="map"):
         return demo.DemoResult(rows=[_doc()], written=[out / "a.json"],
                                failed=[OSError(28, "No space left on device", str(out / "u_shape.rrd"))])
 
