@@ -18,7 +18,7 @@ from sanav_mj.control.base import Controller
 from sanav_mj.mapping.occupancy import OccupancyGrid
 from sanav_mj.mapping.safe_areas import SafeAreas
 from sanav_mj.planning.reference import Plan
-from sanav_mj.scene import Scenario, load_scenario
+from sanav_mj.scene import Scenario, check_timestep, load_scenario
 from sanav_mj.sim.mismatch import Mismatch
 from sanav_mj.sim.runner import Episode, RunConfig
 
@@ -182,6 +182,8 @@ def run_scenario(
         scenario = spec if isinstance(spec, Scenario) else load_scenario(spec)
         prep0 = None
     start = initial_pose(scenario, seed, yaw)
+    # <option timestep> against the control period, before any output is created (ScenarioError, exit 2).
+    check_timestep(scenario, controller_obj.dt if controller_obj is not None else planner_config(scenario.robot).dt)
     t0 = time.perf_counter()
     # The plan starts from the actual start pose; the map does not depend on it.
     prep = prepare(scenario, resolution=prep0.grid.resolution if prep0 else resolution, start=start) \
