@@ -29,6 +29,12 @@ naming the file):
 - **Start / goal**: ``start`` has 3 finite values, ``goal`` 2; both lie inside the workspace
   shrunk by the inflation radius ``footprint_radius + margin`` and at least that far from
   every obstacle's footprint.
+- **Numbers**: every geom's position, size and orientation and every body's position and
+  orientation are finite (no NaN / inf); the robot's parameters lie in :data:`ROBOT_RANGES`;
+  ``<option timestep>`` is finite and > 0, and before a run :func:`check_timestep` requires
+  10 to 1000 physics steps per control period (:data:`STEPS_PER_PERIOD`).
+- **MuJoCo's messages**: its warnings are kept in memory (:func:`mujoco_warnings`), never
+  printed to stderr or written to ``MUJOCO_LOG.TXT``.
 """
 
 from __future__ import annotations
