@@ -161,7 +161,7 @@ def test_grid_geometry_and_boundary():
     assert grid.shape == (10, 11)
     assert np.all(grid.occupied[:, -1])
     assert not np.any(grid.occupied[:, :-1])
-    assert np.allclose(grid.origin, [0.0, 0.0])
+    np.testing.assert_array_equal(grid.origin, [0.0, 0.0])  # exact: the workspace's lower-left corner, copied
     assert grid.inflation == 0.3 and grid.resolution == 0.1
 
 
