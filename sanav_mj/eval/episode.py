@@ -101,12 +101,15 @@ def prepare(
         merge: merge rule of the safe areas (see ``sanav_mj.mapping.safe_areas.MERGE_METHODS``).
         start: (3,) [m, m, rad] start pose to plan from (default: the scenario's).
     """
-    from sanav_mj.mapping import MapConfig, build_map
+    from sanav_mj.mapping import MapConfig, MapMemoryError, build_map
     from sanav_mj.planning import plan as make_plan
 
     scenario = spec if isinstance(spec, Scenario) else load_scenario(spec)
     inflation = scenario.robot.footprint_radius + DEFAULT_MARGIN_M
-    m = build_map(scenario.obstacles, scenario.bounds, inflation, MapConfig(resolution=resolution, merge=merge))
+    try:
+        m = build_map(scenario.obstacles, scenario.bounds, inflation, MapConfig(resolution=resolution, merge=merge))
+    except MapMemoryError as err:  # name the file too (ScenarioError: exit 2)
+        raise MapMemoryError(f"{scenario.path}: {err}") from None
     t0 = time.perf_counter()
     pose = scenario.start if start is None else np.asarray(start, dtype=float)
     plan = make_plan(m.areas, pose, scenario.goal, scenario.robot, planner_config(scenario.robot))

@@ -326,4 +326,4 @@ def test_cli_refuses_a_huge_workspace_in_one_line(tmp_path, capsys, make_scenari
     path.write_text(make_scenario_xml(floor='<geom name="floor" type="plane" pos="0 0 0" size="5000 5000 0.1"/>'))
     assert main(["areas", str(path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--resolution 0.05" in err[0] and "use --resolution" in err[0]
+    assert len(err) == 1 and str(path) in err[0] and "--resolution 0.05" in err[0] and "use --resolution" in err[0]
