@@ -82,71 +82,142 @@ def _count(name: str, lo: int = 1, hi: int = 10_000):
     return parse
 
 
+def _output_arg(name: str):
+    """argparse type: an output path, ``~`` expanded (``--json ~/x.json`` is in the home folder)."""
+
+    def parse(text: str) -> Path:
+        if not text.strip():
+            raise argparse.ArgumentTypeError("expected a path, got an empty string")
+        return Path(os.path.expanduser(text))
+
+    return parse
+
+
+def _plot_arg(text: str) -> Path:
+    """argparse type of ``--plot``: a path whose extension is a figure format (png, pdf, svg, ...)."""
+    from sanav_mj.eval.plots import figure_format
+
+    path = _output_arg("--plot")(text)
+    try:
+        figure_format(path)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return path
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("sanav-mj")
+    except PackageNotFoundError:  # run from a source tree that is not installed
+        return "unknown (not installed)"
+
+
+def mismatch_help() -> str:
+    """``--mismatch`` help: every key with its range and unit, from :mod:`sanav_mj.sim.mismatch`."""
+    from sanav_mj.sim.mismatch import mismatch_keys
+
+    keys = "; ".join(f"{k} {lo:g}..{hi:g} ({meaning})" for k, (lo, hi, meaning) in mismatch_keys().items())
+    return f"plant differs from the controller's model, KEY=VALUE (default: none). Keys, ranges inclusive: {keys}"
+
+
+#: the sweep of ``robustness`` without ``--sweep``
+DEFAULT_SWEEP = ("wheel_radius=0.9,1.0,1.1",)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``sanav-mj``."""
-    p = _Parser(prog="sanav-mj", description="Quadtree safe-area MPC navigation in MuJoCo.")
+    """The argument parser of ``sanav-mj``; every option's help states its default and unit."""
+    p = _Parser(prog="sanav-mj", description="Quadtree safe-area MPC navigation in MuJoCo.",
+                epilog="Exit codes: 0 success; 1 a run did not reach the goal; 2 bad input or an output that could "
+                       "not be written; 3 some campaign runs raised; 130 interrupted; 141 stdout closed.")
+    p.add_argument("--version", action="version", version=f"sanav-mj {_version()}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    scenario_help = "MJCF scenario file, or the name of a built-in scenario (e.g. u_shape)"
+    resolution_help = "grid cell size [m], 0.005..1 (default: %(default)s)"
+    controller_help = "controller: sa-mpc (the paper's), mpc (obstacle-penalty NMPC), dwa, dqn (default: %(default)s)"
+    workers_help = "worker processes, 1..64 (default: %(default)s)"
+    # (the metavars name the unit: M metres, S seconds, RAD radians, N a count)
+    resume_help = ("keep the finished runs journalled in OUT/runs.jsonl (same settings) and run the rest "
+                   "(default: start afresh)")
 
     d = sub.add_parser("demo", help="all built-in scenarios with SA-MPC: .rrd + .png + summary table")
-    d.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
-    d.add_argument("--no-rrd", action="store_true", help="skip the rerun recordings")
+    d.add_argument("--out", type=_output_arg("--out"), default=Path("out/demo"), metavar="DIR",
+                   help="output folder (default: %(default)s)")
+    d.add_argument("--no-rrd", action="store_true", help="skip the rerun recordings (default: write them)")
 
     a = sub.add_parser("areas", help="grid, quadtree, safe areas, graph and reference of a scenario")
-    a.add_argument("scenario", help="MJCF file or built-in scenario name")
-    a.add_argument("--json", type=Path, help="write the areas JSON here")
-    a.add_argument("--plot", type=Path, help="write a PNG of the map here")
-    a.add_argument("--resolution", type=_resolution, default=0.05, help="grid cell size [m] (default 0.05)")
+    a.add_argument("scenario", help=scenario_help)
+    a.add_argument("--json", type=_output_arg("--json"), metavar="FILE", help="write the areas JSON here (default: none)")
+    a.add_argument("--plot", type=_plot_arg, metavar="FILE", help="write a figure of the map here; format from the extension: "
+                                                  ".png (also without one), .pdf, .svg, ... (default: none)")
+    a.add_argument("--resolution", type=_resolution, default=0.05, metavar="M", help=resolution_help)
 
     r = sub.add_parser("run", help="one closed-loop run")
-    r.add_argument("scenario", help="MJCF file or built-in scenario name")
-    r.add_argument("--controller", choices=CONTROLLERS, default="sa-mpc")
-    r.add_argument("--seed", type=_count("--seed", 0, 2**31 - 1), default=0)
-    r.add_argument("--yaw", type=_float_arg("--yaw"), default=None, help="initial yaw [rad] (default: from the seed)")
-    r.add_argument("--resolution", type=_resolution, default=0.05)
-    r.add_argument("--json", type=Path)
-    r.add_argument("--rrd", type=Path)
-    r.add_argument("--plot", type=Path)
-    r.add_argument("--mismatch", nargs="+", default=[], metavar="KEY=VALUE")
-    r.add_argument("--time-limit", type=_time_limit, default=60.0, help="[s] simulated time limit (default 60)")
+    r.add_argument("scenario", help=scenario_help)
+    r.add_argument("--controller", choices=CONTROLLERS, default="sa-mpc", help=controller_help)
+    r.add_argument("--seed", type=_count("--seed", 0, 2**31 - 1), default=0, metavar="N",
+                   help="seed of the initial yaw, noise and jitter, 0..2^31-1 (default: %(default)s)")
+    r.add_argument("--yaw", type=_float_arg("--yaw"), default=None, metavar="RAD",
+                   help="initial yaw [rad] (default: drawn from the seed)")
+    r.add_argument("--resolution", type=_resolution, default=0.05, metavar="M", help=resolution_help)
+    r.add_argument("--json", type=_output_arg("--json"), metavar="FILE", help="write the run JSON here (default: none)")
+    r.add_argument("--rrd", type=_output_arg("--rrd"), metavar="FILE", help="write a rerun recording (.rrd) here (default: none)")
+    r.add_argument("--plot", type=_plot_arg, metavar="FILE", help="write a figure of the run here; format from the extension: "
+                                                  ".png (also without one), .pdf, .svg, ... (default: none)")
+    r.add_argument("--mismatch", nargs="+", default=[], metavar="KEY=VALUE", help=mismatch_help())
+    r.add_argument("--time-limit", type=_time_limit, default=60.0, metavar="S",
+                   help=f"simulated time limit [s], 0 < S <= {MAX_TIME_LIMIT_S:g} (default: %(default)s)")
 
     b = sub.add_parser("bench", help="the paper's comparison: success rates and timing table")
-    b.add_argument("scenarios", nargs="*", help="scenarios (default: all built-in)")
-    b.add_argument("--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS))
-    b.add_argument("--runs", type=_count("--runs"), default=10)
-    b.add_argument("--workers", type=_count("--workers", 1, 64), default=2)
-    b.add_argument("--out", type=Path, default=Path("out/bench"))
-    b.add_argument("--rrd", action="store_true", help="also record each run to OUT/rrd/")
-    b.add_argument("--resume", action="store_true",
-                   help="keep the finished runs journalled in OUT/runs.jsonl (same settings) and run the rest")
+    b.add_argument("scenarios", nargs="*", help="scenario files or built-in names (default: all built-in)")
+    b.add_argument("--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS),
+                   help="controllers to compare (default: all four)")
+    b.add_argument("--runs", type=_count("--runs"), default=10, metavar="N",
+                   help="runs (seeds 0..N-1) per scenario and controller, 1..10000 (default: %(default)s)")
+    b.add_argument("--workers", type=_count("--workers", 1, 64), default=2, metavar="N", help=workers_help)
+    b.add_argument("--out", type=_output_arg("--out"), default=Path("out/bench"), metavar="DIR",
+                   help="output folder (default: %(default)s)")
+    b.add_argument("--rrd", action="store_true", help="also record each run to OUT/rrd/ (default: no)")
+    b.add_argument("--resume", action="store_true", help=resume_help)
 
+    keys = ", ".join(_mismatch_key_names())
     rb = sub.add_parser("robustness", help="sweep model mismatch over a grid with several seeds")
-    rb.add_argument("scenarios", nargs="+")
-    rb.add_argument("--sweep", nargs="+", default=["wheel_radius=0.9,1.0,1.1"], metavar="KEY=V1,V2,...",
-                    help="one or two keys with their grid values")
-    rb.add_argument("--seeds", type=_count("--seeds"), default=5)
-    rb.add_argument("--controller", choices=CONTROLLERS, default="sa-mpc")
-    rb.add_argument("--workers", type=_count("--workers", 1, 64), default=2)
+    rb.add_argument("scenarios", nargs="+", help="scenario files or built-in names")
+    rb.add_argument("--sweep", nargs="+", default=list(DEFAULT_SWEEP), metavar="KEY=V1,V2,...",
+                    help=f"one or two mismatch keys with their grid values; keys: {keys} (ranges and units as "
+                         f"run --mismatch) (default: {' '.join(DEFAULT_SWEEP)})")
+    rb.add_argument("--seeds", type=_count("--seeds"), default=5, metavar="N",
+                    help="seeds 0..N-1 per grid point and scenario, 1..10000 (default: %(default)s)")
+    rb.add_argument("--controller", choices=CONTROLLERS, default="sa-mpc", help=controller_help)
+    rb.add_argument("--workers", type=_count("--workers", 1, 64), default=2, metavar="N", help=workers_help)
     rb.add_argument("--fixed", nargs="+", default=[], metavar="KEY=VALUE",
-                    help="mismatch applied at every grid point (keys as --mismatch; not a swept key)")
-    rb.add_argument("--time-limit", type=_time_limit, default=60.0,
-                    help="[s] simulated time limit of each run (default 60)")
-    rb.add_argument("--out", type=Path, default=Path("out/robustness"))
-    rb.add_argument("--resume", action="store_true",
-                    help="keep the finished runs journalled in OUT/runs.jsonl (same settings) and run the rest")
+                    help="mismatch applied at every grid point (keys as run --mismatch; not a swept key) "
+                         "(default: none)")
+    rb.add_argument("--time-limit", type=_time_limit, default=60.0, metavar="S",
+                    help=f"simulated time limit of each run [s], 0 < S <= {MAX_TIME_LIMIT_S:g} (default: %(default)s)")
+    rb.add_argument("--out", type=_output_arg("--out"), default=Path("out/robustness"), metavar="DIR",
+                    help="output folder (default: %(default)s)")
+    rb.add_argument("--resume", action="store_true", help=resume_help)
     return p
 
 
+def _mismatch_key_names() -> list[str]:
+    from sanav_mj.sim.mismatch import mismatch_keys
+
+    return list(mismatch_keys())
+
+
 def _write_json(path: Path, doc: dict) -> None:
-    _prepare_output(path)
-    text = json.dumps(doc, indent=1, allow_nan=False)
-    try:
-        path.write_text(text)
-    except OSError as exc:
-        raise BadInput(f"{path}: cannot write ({exc.strerror})") from None
+    from sanav_mj.outputs import write_text
+
+    write_text(path, json.dumps(doc, indent=1, allow_nan=False))
 
 
 def _write_outputs(writers: list[tuple[Path | None, object]]) -> None:
     """Call each ``(path, write)`` whose path is set; one failure does not stop the others.
+
+    Every output is written whole or not at all (:mod:`sanav_mj.outputs`).
 
     Raises:
         BadInput: naming the first output that could not be written (and how many failed).
@@ -160,19 +231,10 @@ def _write_outputs(writers: list[tuple[Path | None, object]]) -> None:
         except BadInput as exc:
             failed.append(str(exc))
         except OSError as exc:
-            failed.append(f"{path}: cannot write ({exc.strerror or exc})")
+            failed.append(f"{exc.filename or path}: cannot write ({exc.strerror or exc})")
     if failed:
         more = f" (and {len(failed) - 1} more output(s) not written)" if len(failed) > 1 else ""
         raise BadInput(failed[0] + more)
-
-
-def _prepare_output(path: Path) -> None:
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise BadInput(f"{path}: cannot create the output folder ({exc.strerror})") from None
-    if path.exists() and path.is_dir():
-        raise BadInput(f"{path}: expected a file path, got a folder")
 
 
 def _check_out_dir(path: Path, name: str = "--out") -> None:
@@ -211,24 +273,34 @@ def _distinct_outputs(named: dict[str, Path | None]) -> None:
         seen[key] = name
 
 
-def _check_outputs(*paths: Path | None) -> None:
-    """Fail early (before any long work) when an output path is unusable."""
-    for path in paths:
+def _check_outputs(named: dict[str, Path | None]) -> None:
+    """Fail early (before any long work) when an output path is unusable; creates nothing.
+
+    The output (and its folder) is written only at the end, once complete: no empty file is
+    left by a run that fails or is interrupted.
+    """
+    for name, path in named.items():
         if path is None:
             continue
-        _prepare_output(path)
-        try:
-            with open(path, "ab"):
-                pass
-        except OSError as exc:
-            raise BadInput(f"{path}: cannot write ({exc.strerror})") from None
+        if path.is_dir():
+            raise BadInput(f"{name} {path}: expected a file path, got a folder")
+        folder = path.parent
+        while not folder.exists() and folder != folder.parent:
+            folder = folder.parent
+        if not folder.is_dir():
+            raise BadInput(f"{name} {path}: cannot create the output folder ({folder} is not a folder)")
+        if path.exists() and not os.access(path, os.W_OK):
+            raise BadInput(f"{name} {path}: cannot write (permission denied)")
+        if not path.exists() and not os.access(folder, os.W_OK | os.X_OK):
+            raise BadInput(f"{name} {path}: cannot write in {folder} (permission denied)")
 
 
 def _cmd_areas(args) -> int:
     from sanav_mj.eval.episode import areas_document, prepare
 
-    _distinct_outputs({"--json": args.json, "--plot": args.plot})
-    _check_outputs(args.json, args.plot)
+    outputs = {"--json": args.json, "--plot": args.plot}
+    _distinct_outputs(outputs)
+    _check_outputs(outputs)
     prep = prepare(args.scenario, resolution=args.resolution)
     doc = areas_document(prep)
 
@@ -237,13 +309,16 @@ def _cmd_areas(args) -> int:
 
         plot_areas(prep, args.plot)
 
-    _write_outputs([(args.json, lambda: _write_json(args.json, doc)), (args.plot, plot)])
-    t = doc["timing_ms"]
-    print(
-        f"{doc['scenario']}: grid {doc['grid']['shape'][1]}x{doc['grid']['shape'][0]} @ {doc['grid']['resolution']} m, "
-        f"leaves {doc['leaves']['free']} free / {doc['leaves']['occupied']} occupied, {len(doc['rects'])} safe areas, "
-        f"{len(doc['edges'])} edges, corridor {len(doc['corridor'])} areas, {t['total']:.2f} ms"
-    )
+    try:  # the result line first: a failing output file must not lose it
+        t = doc["timing_ms"]
+        route = f"corridor {len(doc['corridor'])} areas" if doc["corridor"] else "no path from the start to the goal"
+        print(
+            f"{doc['scenario']}: grid {doc['grid']['shape'][1]}x{doc['grid']['shape'][0]} @ "
+            f"{doc['grid']['resolution']} m, leaves {doc['leaves']['free']} free / {doc['leaves']['occupied']} "
+            f"occupied, {len(doc['rects'])} safe areas, {len(doc['edges'])} edges, {route}, {t['total']:.2f} ms"
+        )
+    finally:
+        _write_outputs([(args.json, lambda: _write_json(args.json, doc)), (args.plot, plot)])
     return 0
 
 
@@ -252,24 +327,18 @@ def _cmd_run(args) -> int:
     from sanav_mj.sim.mismatch import parse_mismatch
 
     mismatch = parse_mismatch(args.mismatch)
-    _distinct_outputs({"--json": args.json, "--rrd": args.rrd, "--plot": args.plot})
-    _check_outputs(args.json, args.rrd, args.plot)
-    try:
-        out = run_scenario(
-            args.scenario,
-            controller=args.controller,
-            seed=args.seed,
-            yaw=args.yaw,
-            resolution=args.resolution,
-            mismatch=mismatch,
-            time_limit_s=args.time_limit,
-            rrd=args.rrd,
-        )
-    except RuntimeError as exc:
-        if args.rrd is None or not _raised_in_rerun(exc):
-            raise
-        first = (str(exc).strip().splitlines() or ["no message"])[0]
-        raise BadInput(f"{args.rrd}: cannot write the recording ({first})") from None
+    outputs = {"--json": args.json, "--rrd": args.rrd, "--plot": args.plot}
+    _distinct_outputs(outputs)
+    _check_outputs(outputs)
+    out = run_scenario(
+        args.scenario,
+        controller=args.controller,
+        seed=args.seed,
+        yaw=args.yaw,
+        resolution=args.resolution,
+        mismatch=mismatch,
+        time_limit_s=args.time_limit,
+    )
     doc = out.document
 
     def plot() -> None:
@@ -277,10 +346,23 @@ def _cmd_run(args) -> int:
 
         plot_run(out, args.plot)
 
+    def record() -> None:
+        from sanav_mj.record import record_episode
+
+        try:
+            record_episode(args.rrd, out)
+        except OSError as exc:
+            raise BadInput(f"{exc.filename or args.rrd}: cannot write the recording ({exc.strerror or exc})") from None
+        except RuntimeError as exc:  # raised inside the rerun SDK
+            if not _raised_in_rerun(exc):
+                raise
+            first = (str(exc).strip().splitlines() or ["no message"])[0]
+            raise BadInput(f"{args.rrd}: cannot write the recording ({first})") from None
+
     try:  # the result line first: a failing output file must not lose it
-        _print_run_line(doc)
+        print(run_line(doc))
     finally:
-        _write_outputs([(args.json, lambda: _write_json(args.json, doc)), (args.plot, plot)])
+        _write_outputs([(args.json, lambda: _write_json(args.json, doc)), (args.rrd, record), (args.plot, plot)])
     return 0 if doc["success"] else 1
 
 
@@ -292,23 +374,52 @@ def _raised_in_rerun(exc: BaseException) -> bool:
     return tb is not None and "/rerun/" in tb.tb_frame.f_code.co_filename.replace("\\", "/")
 
 
-def _print_run_line(doc: dict) -> None:
-    print(
-        f"{doc['scenario']} / {doc['controller']} seed {doc['seed']}: {doc['reason']} after {doc['steps']} steps "
-        f"({doc['sim_time_s']:.1f} s), path {doc['path_length_m']:.2f} m, min clearance "
-        f"{doc['min_clearance_m']:.3f} m, collisions {doc['collisions']}, solve {doc['solve_ms']['mean']:.2f} ms mean "
-        f"/ {doc['solve_ms']['p99']:.2f} ms p99"
-    )
+def _num(value) -> str:
+    """A mismatch value as given: ``delay=1``, ``friction=0.3``."""
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def run_line(doc: dict) -> str:
+    """The one-line result of ``run``: outcome, steps, time, path, clearance, collisions, and,
+    when non-zero, safe-area violations and solver failures; the mismatch applied; solve times.
+
+    Every field may be missing or None (a run that never moved has no clearance): shown as n/a.
+    """
+    def num(key: str, fmt: str) -> str:
+        v = doc.get(key)
+        return "n/a" if v is None else format(v, fmt)
+
+    head = f"{doc.get('scenario')} / {doc.get('controller')} seed {doc.get('seed')}: {doc.get('reason')}"
+    if doc.get("reason") == "no_path" and not doc.get("steps"):
+        return f"{head}: no corridor of safe areas joins the start to the goal; the robot did not move"
+    parts = [f"{head} after {num('steps', 'd')} steps ({num('sim_time_s', '.1f')} s)",
+             f"path {num('path_length_m', '.2f')} m", f"min clearance {num('min_clearance_m', '.3f')}" + (" m" if doc.get("min_clearance_m") is not None else ""),
+             f"collisions {num('collisions', 'd')}"]
+    for key, label in (("safe_area_violations", "safe-area violations"), ("solver_failures", "solver failures")):
+        if doc.get(key):
+            parts.append(f"{label} {doc[key]}")
+    if doc.get("mismatch"):
+        parts.append("mismatch " + " ".join(f"{k}={_num(v)}" for k, v in doc["mismatch"].items()))
+    solve = doc.get("solve_ms") or {}
+    if doc.get("steps") and solve.get("mean") is not None:
+        parts.append(f"solve {solve['mean']:.2f} ms mean / {solve.get('p99', float('nan')):.2f} ms p99")
+    return ", ".join(parts)
 
 
 def _cmd_demo(args) -> int:
     from sanav_mj.eval.demo import run_demo, summary_table
 
     _check_out_dir(args.out)
-    rows = run_demo(args.out, record=not args.no_rrd)
-    print(summary_table(rows), end="")
-    print(f"wrote recordings (.rrd), plots (.png) and JSON to {args.out}/")
-    return 0 if all(r["success"] for r in rows) else 1
+    result = run_demo(args.out, record=not args.no_rrd)
+    print(summary_table(result.rows), end="")
+    kinds = "recordings (.rrd), plots (.png) and JSON" if not args.no_rrd else "plots (.png) and JSON (no recordings: --no-rrd)"
+    print(f"wrote {kinds} to {args.out}/" if not result.failed else
+          f"wrote {len(result.written)} files to {args.out}/")
+    if result.failed:
+        exc = result.failed[0]
+        more = f" (and {len(result.failed) - 1} more output(s) not written)" if len(result.failed) > 1 else ""
+        raise BadInput(f"{exc.filename}: cannot write ({exc.strerror or exc}){more}")
+    return 0 if all(r["success"] for r in result.rows) else 1
 
 
 def _cmd_bench(args) -> int:
@@ -355,18 +466,25 @@ def _parse_fixed(items: list[str], sweep: list[tuple[str, list[float]]]):
 
 
 def _cmd_robustness(args) -> int:
-    from sanav_mj.eval.robustness import parse_sweep, run_robustness
+    from sanav_mj.eval.robustness import POOLED, parse_sweep, run_robustness
 
     sweep = parse_sweep(args.sweep)
     fixed = _parse_fixed(args.fixed, sweep)
     _check_scenarios(args.scenarios)
     _check_out_dir(args.out)
+    default = " (the default; choose with --sweep KEY=V1,V2,...)" if args.sweep == list(DEFAULT_SWEEP) else ""
+    grid = " x ".join(f"{k} = {', '.join(_num(v) for v in vals)}" for k, vals in sweep)
+    print(f"robustness: sweeping {grid}{default}, {args.seeds} seed(s) per point and scenario, controller "
+          f"{args.controller}" + (f", fixed {' '.join(args.fixed)}" if args.fixed else ""), flush=True)
     summary = run_robustness(args.scenarios, sweep, args.seeds, args.controller, args.workers, args.out,
                              time_limit_s=args.time_limit, fixed=fixed, resume=args.resume)
-    for row in summary:
-        print("  ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
-    print(f"wrote {args.out}/robustness.csv, summary.csv and heat maps")
-    return _raised_runs(summary, args.out / "robustness.csv")
+    for row in summary:  # a quantity with no value (NaN: no run ran, or none has a clearance) is n/a
+        print("  ".join(f"{k}={'n/a' if math.isnan(v) else format(v, '.3g')}" if isinstance(v, float) else f"{k}={v}"
+                        for k, v in row.items()))
+    per = " (pooled; per scenario in summary_by_scenario.csv and per_scenario/)" if any(
+        r["scenario"] != POOLED for r in summary) else ""
+    print(f"wrote {args.out}/robustness.csv, summary.csv and heat maps{per}")
+    return _raised_runs([r for r in summary if r["scenario"] == POOLED], args.out / "robustness.csv")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -376,7 +494,11 @@ def main(argv: list[str] | None = None) -> int:
     from sanav_mj.sim.mismatch import MismatchError
 
     try:
-        args = build_parser().parse_args(argv)
+        try:
+            args = build_parser().parse_args(argv)
+        except SystemExit as exc:  # --help, --version: printed; exit 0
+            sys.stdout.flush()
+            return int(exc.code or 0)
         handler = {
             "areas": _cmd_areas,
             "run": _cmd_run,

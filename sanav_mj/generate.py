@@ -1,4 +1,4 @@
-"""Seeded random cluttered scenarios in the scenario MJCF format of the design contract.
+"""Seeded random cluttered scenarios in the scenario MJCF format of docs/scenarios.md.
 
 A generated scenario is a rectangular floor (the workspace) with the start near its left
 edge, the goal near its right edge, and a random number of static obstacles in between:

@@ -1,10 +1,13 @@
 """Rerun recordings of episodes: the map and plan once, then the run step by step.
 
 A :class:`Recorder` owns an explicit :class:`rerun.RecordingStream` (never the global one)
-that streams to an ``.rrd`` file. It is driven from the edge of the pipeline
-(:func:`sanav_mj.eval.episode.run_scenario`): the constructor logs the static scene, the
+that encodes into memory; :meth:`Recorder.close` writes the ``.rrd`` file whole or not at
+all (a write error such as a full disk is raised naming the file; Ctrl-C leaves no partial
+file). It is driven from the edge of the pipeline: either step by step
+(:func:`sanav_mj.eval.episode.run_scenario`: the constructor logs the static scene, the
 runner's ``on_step(step, trace)`` hook feeds :meth:`Recorder.log_step`, and
-:meth:`Recorder.finish` logs the summary and closes the file. Algorithms never log.
+:meth:`Recorder.finish` logs the summary and closes the file) or, for a finished run, in one
+call (:func:`record_episode`, what ``sanav-mj run --rrd`` uses). Algorithms never log.
 
 Open a recording with ``rerun FILE.rrd``; the file carries a default blueprint (a 2D map
 beside time-series panels), see ``docs/recordings.md``.
@@ -88,6 +91,7 @@ from typing import TYPE_CHECKING, Any, Self
 import mujoco
 import numpy as np
 
+from sanav_mj.outputs import write_bytes
 from sanav_mj.scene import Scenario
 
 if TYPE_CHECKING:
@@ -290,8 +294,16 @@ class Recorder:
         config: recording settings.
 
     Usage: ``rec = Recorder(path, prep, "sa-mpc")``; pass ``rec.log_step`` as the runner's
-    ``on_step``; call ``rec.finish(episode, document)`` once at the end. Also a context
-    manager: leaving the block without ``finish`` closes the file (data so far is kept).
+    ``on_step``; call ``rec.finish(episode, document)`` once at the end, or
+    :func:`record_episode` to record a finished run in one call. Also a context manager:
+    leaving the block without ``finish`` closes the file (data so far is kept), Ctrl-C
+    discards it.
+
+    The file is written whole or not at all, by :meth:`close`: the recording is held in
+    memory until then (a few MB for a minute of driving), written to a temporary file
+    beside ``path`` and renamed onto it. A write error (a full disk) is raised by
+    :meth:`finish` / :meth:`close` as :class:`OSError` naming ``path``, with no file left
+    behind; nothing is written before, so Ctrl-C leaves no partial file.
     """
 
     def __init__(self, path: str | Path, prep: Any, controller: str, config: RecordConfig = RecordConfig()) -> None:
@@ -301,7 +313,6 @@ class Recorder:
             if not hasattr(prep, attr):
                 raise ValueError(f"Recorder: prep must be a Prepared with .{attr}, got {type(prep).__name__}")
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         self.config = config
         self.controller = str(controller)
         self._prep = prep
@@ -313,7 +324,11 @@ class Recorder:
         import rerun as rr
 
         self.rec = rr.RecordingStream(APP_ID, make_default=False, make_thread_default=False)
-        self.rec.save(self.path)
+        # The SDK encodes into memory and close() writes the file: the SDK's own file sink
+        # writes from a thread that only logs a write error (a full disk gave a cut file and
+        # exit 0) and leaves a partial file behind on Ctrl-C. The stream is read once, at the
+        # end: each flushing read would start a new stream segment in the file.
+        self._stream = self.rec.binary_stream()
         self.rec.send_blueprint(default_blueprint(config.show_quadtree, config.show_graph), make_active=True,
                                 make_default=True)
         self.rec.send_recording_name(f"{prep.scenario.name} / {self.controller}")
@@ -619,19 +634,66 @@ class Recorder:
         self.close()
 
     def close(self) -> None:
-        """Flush and close the file (idempotent). :meth:`finish` calls it."""
+        """End the recording and write the complete file at ``path`` (idempotent).
+
+        :meth:`finish` calls it. The file is written to a temporary file beside ``path`` and
+        renamed onto it (:func:`sanav_mj.outputs.write_bytes`).
+
+        Raises:
+            OSError: the file could not be written completely (e.g. ``ENOSPC``, a full
+                disk); ``filename`` is ``path``, and nothing (not even a partial file) is
+                left at ``path``.
+        """
         if self._closed:
             return
         self._closed = True
-        # disconnect() flushes the batcher and the file sink (blocking) before closing;
-        # an explicit flush() first only adds a second wait.
+        self.rec.disconnect()  # ends the stream (its footer); the bytes are read after it
+        data = self._stream.read(flush=False) or b""
+        write_bytes(self.path, data)
+
+    def discard(self) -> None:
+        """End the recording without writing ``path`` (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
         self.rec.disconnect()
+        self._stream.read(flush=False)  # the SDK warns on stderr about bytes dropped unread
 
     def __enter__(self) -> Self:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        """Leaving the block closes the file (data so far is a valid recording of what ran
+        before an error); Ctrl-C (or any non-``Exception``) discards it: no partial file."""
+        if exc_type is not None and not issubclass(exc_type, Exception):
+            self.discard()
+        else:
+            self.close()
+
+
+def record_episode(path: str | Path, outcome: Any, config: RecordConfig = RecordConfig()) -> Path:
+    """Record a finished run to ``path`` in one call (the same file as streaming it step by step).
+
+    Args:
+        path: output ``.rrd`` file.
+        outcome: :class:`~sanav_mj.eval.episode.RunOutcome` (``prepared``, ``controller``,
+            ``episode``, ``document``).
+        config: recording settings.
+
+    Returns:
+        ``path``.
+
+    Raises:
+        OSError: the file could not be written completely (``filename`` is ``path``; no file
+            is left at ``path``).
+    """
+    rec = Recorder(path, outcome.prepared, outcome.controller, config)
+    try:
+        rec.finish(outcome.episode, outcome.document)
+    except BaseException:
+        rec.discard()
+        raise
+    return Path(path)
 
 
 def summary_markdown(document: dict[str, Any]) -> str:

@@ -2,7 +2,7 @@
 
 A scenario file includes the robot (``models/diff_drive.xml``) and adds a floor plane, static
 obstacle geoms and ``<custom>`` numerics ``start`` (x [m], y [m], yaw [rad]) and ``goal``
-(x [m], y [m]). See the design contract for the format.
+(x [m], y [m]). The format is documented in docs/scenarios.md.
 
 Everything downstream (mapping, planning, control, sim) works from the :class:`Scenario`
 returned here; nothing downstream re-parses the XML.

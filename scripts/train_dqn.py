@@ -32,6 +32,10 @@ import numpy as np
 
 from sanav_mj.control.dqn import DEFAULT_POLICY_FILE, DQNPolicy, qnetwork_from_sb3
 from sanav_mj.sim.nav_env import NavEnv, NavEnvConfig, TrainConfig, evaluate_greedy, train_dqn
+from sanav_mj.sim.termination import TerminationConfig
+
+#: [s] episode time limit of training (400 steps of 0.1 s)
+TRAINING_TIME_LIMIT_S = 40.0
 
 #: Map seeds for checkpoint selection during training (disjoint from training and test maps).
 SELECTION_MAP_SEED_START = 800_000
@@ -146,7 +150,9 @@ def main(argv: list[str] | None = None) -> int:
     import torch
     from tqdm import tqdm
 
-    env_cfg = NavEnvConfig(n_maps=args.n_maps)
+    # The runner's termination rules (sanav_mj.sim.termination) with 40 s (400-step) episodes:
+    # the training maps are 6-12 m wide; the shipped policy was trained this way.
+    env_cfg = NavEnvConfig(n_maps=args.n_maps, termination=TerminationConfig(time_limit_s=TRAINING_TIME_LIMIT_S))
     train_cfg = TrainConfig(total_steps=args.measure or args.steps, torch_threads=args.threads)
     if args.measure:
         train_cfg = replace(train_cfg, learning_starts=min(train_cfg.learning_starts, args.measure // 4))
@@ -225,8 +231,10 @@ def main(argv: list[str] | None = None) -> int:
         "algorithm": "stable-baselines3 DQN, MlpPolicy",
         "hyperparameters": asdict(train_cfg),
         "env": {
-            "dt": env_cfg.dt, "max_steps": env_cfg.max_steps, "goal_tolerance_m": env_cfg.goal_tolerance_m,
-            "stuck_window_s": env_cfg.stuck_window_s, "stuck_progress_m": env_cfg.stuck_progress_m,
+            "dt": env_cfg.dt, "max_steps": env_cfg.termination.max_steps(env_cfg.dt),
+            "goal_tolerance_m": env_cfg.termination.goal_tolerance_m,
+            "stuck_window_s": env_cfg.termination.stuck_window_s,
+            "stuck_progress_m": env_cfg.termination.stuck_progress_m,
             "training_map_seeds": [env_cfg.map_seed_start, env_cfg.map_seed_start + env_cfg.n_maps - 1],
             "validation_map_seeds": [VALIDATION_MAP_SEED_START, VALIDATION_MAP_SEED_START + args.val_episodes - 1],
             "swap_start_goal": env_cfg.swap_start_goal, "random_endpoints": env_cfg.random_endpoints,

@@ -209,7 +209,7 @@ def test_run_result_is_printed_and_kept_when_an_output_fails(tmp_path, capsys):
 def test_an_os_error_mid_way_is_one_line(tmp_path, monkeypatch, capsys):
     from sanav_mj.eval import demo
 
-    def full_disk(out, record):
+    def full_disk(out, record):  # raised by run_demo itself (not an output it notes)
         raise OSError(28, "No space left on device", "out/demo/u_shape.json")
 
     monkeypatch.setattr(demo, "run_demo", full_disk)
@@ -313,3 +313,224 @@ def test_campaign_interrupt_resume_and_raised_runs(tmp_path, capsys, fake_campai
     journal.write_text("{oops\n" + journal.read_text())
     code, _, err = _run(argv + ["--resume"], capsys)
     assert code == 2 and err.count("\n") == 1 and "runs.jsonl:1: not a journal line" in err
+
+
+# --------------------------------------------------------------------------- runs that cannot succeed
+
+#: four walls around the goal (6, 0): no corridor reaches it
+WALLED = "".join(f'<geom name="w{i}" type="box" pos="{x} {y} 0.25" size="{sx} {sy} 0.25"/>'
+                 for i, (x, y, sx, sy) in enumerate([(6, 1, 1.1, 0.1), (6, -1, 1.1, 0.1), (5, 0, 0.1, 1.1),
+                                                     (7, 0, 0.1, 1.1)]))
+
+
+def test_a_goal_that_cannot_be_reached_is_an_outcome_line_and_exit_1(tmp_path, capsys, write_scenario):
+    scenario = write_scenario(WALLED, name="walled", goal="6 0")
+    js = tmp_path / "w.json"
+    code, out, err = _run(["run", str(scenario), "--json", str(js)], capsys)
+    assert (code, err) == (1, "")
+    assert out == ("walled / sa-mpc seed 0: no_path: no corridor of safe areas joins the start to the goal; "
+                   "the robot did not move\n")
+    doc = json.loads(js.read_text())
+    assert doc["reason"] == "no_path" and doc["min_clearance_m"] is None
+    code, out, err = _run(["areas", str(scenario)], capsys)
+    assert (code, err) == (0, "") and "no path from the start to the goal" in out
+
+
+# --------------------------------------------------------------------------- the run line shows trouble
+
+
+def _doc(**kw):
+    stats = {"mean": 1.25, "max": 2.0, "std": 0.5, "p50": 1.0, "p99": 1.75}
+    return {"scenario": "u_shape", "controller": "sa-mpc", "seed": 3, "success": True, "reason": "goal", "steps": 200,
+            "sim_time_s": 20.0, "path_length_m": 8.5, "min_clearance_m": 0.125, "collisions": 0,
+            "safe_area_violations": 0, "solver_failures": 0, "solve_ms": stats, "mismatch": {}} | kw
+
+
+def test_run_line_shows_violations_failures_and_the_mismatch():
+    from sanav_mj.cli import run_line
+
+    clean = run_line(_doc())
+    assert clean == ("u_shape / sa-mpc seed 3: goal after 200 steps (20.0 s), path 8.50 m, min clearance 0.125 m, "
+                     "collisions 0, solve 1.25 ms mean / 1.75 ms p99")
+    line = run_line(_doc(safe_area_violations=10, solver_failures=24, mismatch={"delay": 1, "friction": 0.3}))
+    assert line == ("u_shape / sa-mpc seed 3: goal after 200 steps (20.0 s), path 8.50 m, min clearance 0.125 m, "
+                    "collisions 0, safe-area violations 10, solver failures 24, mismatch delay=1 friction=0.3, "
+                    "solve 1.25 ms mean / 1.75 ms p99")
+    assert "min clearance n/a," in run_line(_doc(min_clearance_m=None, reason="timeout"))
+
+
+# --------------------------------------------------------------------------- outputs: formats, ~, no empty files
+
+
+def test_plot_format_from_the_extension_and_others_refused_before_any_run(tmp_path, capsys, monkeypatch):
+    from sanav_mj.eval import episode
+
+    for ext, magic in ((".pdf", b"%PDF"), (".svg", b"<?xml"), (".png", b"\x89PNG"), ("", b"\x89PNG")):
+        path = tmp_path / f"map{ext}"
+        code, _, err = _run(["areas", "single_rect", "--plot", str(path)], capsys)
+        assert code == 0, err
+        assert path.read_bytes()[:len(magic)] == magic, ext
+    monkeypatch.setattr(episode, "run_scenario", lambda *a, **k: pytest.fail("ran before refusing --plot"))
+    code, _, err = _run(["run", "single_rect", "--plot", str(tmp_path / "r.txt"), "--json", str(tmp_path / "r.json")],
+                        capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert f"--plot: {tmp_path / 'r.txt'}: expected a figure file ending in one of" in err and "'.txt'" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["map", "map.pdf", "map.png", "map.svg"]
+
+
+def test_output_paths_expand_the_home_folder(tmp_path, capsys, monkeypatch):
+    home, cwd = tmp_path / "home", tmp_path / "cwd"
+    home.mkdir()
+    cwd.mkdir()
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.chdir(cwd)
+    code, _, err = _run(["areas", "single_rect", "--json", "~/x.json", "--plot", "~/sub/x.png"], capsys)
+    assert code == 0, err
+    assert json.loads((home / "x.json").read_text())["scenario"] == "single_rect"
+    assert (home / "sub" / "x.png").exists()
+    assert list(cwd.iterdir()) == []  # no folder named "~"
+
+
+def test_a_run_that_fails_or_is_interrupted_leaves_no_output_file(tmp_path, capsys, monkeypatch):
+    from sanav_mj.eval import episode
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(episode, "run_scenario", interrupted)
+    out = tmp_path / "sub"
+    code, _, err = _run(["run", "single_rect", "--json", str(out / "r.json"), "--rrd", str(out / "r.rrd"),
+                         "--plot", str(out / "r.png")], capsys)
+    assert code == 130 and err == "sanav-mj: interrupted\n"
+    assert not out.exists()  # no empty file, not even the folder
+
+
+def _fill_disk_after(monkeypatch, suffix: str, keep: int):
+    """Writes of a temporary output whose final name ends in ``suffix`` stop after ``keep`` bytes with ENOSPC."""
+    import builtins
+    import errno
+
+    from sanav_mj import outputs
+
+    class Full:
+        def __init__(self, fh):
+            self.fh, self.left = fh, keep
+
+        def write(self, data):
+            if len(data) > self.left:
+                self.fh.write(data[:self.left])
+                self.left = 0
+                raise OSError(errno.ENOSPC, "No space left on device")
+            self.left -= len(data)
+            return self.fh.write(data)
+
+        def __getattr__(self, name):
+            return getattr(self.fh, name)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.fh.close()
+
+    def fake_open(path, mode="r", *a, **k):
+        fh = builtins.open(path, mode, *a, **k)
+        return Full(fh) if "w" in mode and str(path).endswith(".part") and f"{suffix}." in Path(path).name else fh
+
+    monkeypatch.setattr(outputs, "open", fake_open, raising=False)
+
+
+def test_a_recording_cut_short_by_a_full_disk_is_exit_2_and_the_rest_is_kept(tmp_path, capsys, monkeypatch):
+    _fill_disk_after(monkeypatch, ".rrd", keep=4096)
+    rrd, js, png = tmp_path / "r.rrd", tmp_path / "r.json", tmp_path / "r.png"
+    code, out, err = _run(["run", "single_rect", "--controller", "dwa", "--time-limit", "0.5", "--rrd", str(rrd),
+                           "--json", str(js), "--plot", str(png)], capsys)
+    assert code == 2
+    assert err == f"sanav-mj: error: {rrd}: cannot write the recording (No space left on device)\n"
+    assert out.startswith("single_rect / dwa seed 0: timeout")
+    assert json.loads(js.read_text())["reason"] == "timeout" and png.read_bytes()[:4] == b"\x89PNG"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.json", "r.png"]  # no cut file, no .part file
+
+
+# --------------------------------------------------------------------------- the command line as people read it
+
+
+def test_every_option_says_its_default_and_mismatch_lists_every_key_with_its_range():
+    import argparse
+
+    from sanav_mj.cli import build_parser
+    from sanav_mj.sim.mismatch import mismatch_keys
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    checked = 0
+    for name, p in sub.choices.items():
+        for action in p._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            assert action.help, f"{name} {action.dest}: no help"
+            if action.option_strings:
+                assert "default" in action.help, f"{name} {action.option_strings[0]}: no default in {action.help!r}"
+                checked += 1
+    assert checked >= 25
+    text = next(a for a in sub.choices["run"]._actions if a.dest == "mismatch").help
+    for key, (lo, hi, meaning) in mismatch_keys().items():
+        assert f"{key} {lo:g}..{hi:g} ({meaning})" in text
+
+
+def test_version_and_python_m_sanav_mj(capsys):
+    from importlib.metadata import version
+
+    code, out, err = _run(["--version"], capsys)
+    assert (code, out, err) == (0, f"sanav-mj {version('sanav-mj')}\n", "")
+    proc = subprocess.run([sys.executable, "-m", "sanav_mj", "--version"], capture_output=True, text=True)
+    assert (proc.returncode, proc.stdout, proc.stderr) == (0, out, "")
+    proc = subprocess.run([sys.executable, "-m", "sanav_mj", "run", "nope"], capture_output=True, text=True)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "nope" in proc.stderr
+
+
+def test_robustness_says_what_it_sweeps(tmp_path, capsys, monkeypatch):
+    from sanav_mj.eval import robustness
+
+    monkeypatch.setattr(robustness, "run_jobs", lambda jobs, workers, desc, **kw: [_fake_doc(j) for j in jobs])
+    code, out, err = _run(["robustness", "single_rect", "--seeds", "1", "--out", str(tmp_path / "a")], capsys)
+    assert code == 0, err
+    assert out.splitlines()[0] == ("robustness: sweeping wheel_radius = 0.9, 1, 1.1 (the default; choose with "
+                                   "--sweep KEY=V1,V2,...), 1 seed(s) per point and scenario, controller sa-mpc")
+    code, out, err = _run(["robustness", "single_rect", "--seeds", "2", "--sweep", "delay=0,2", "friction=0.5,1",
+                           "--out", str(tmp_path / "b")], capsys)
+    assert code == 0, err
+    assert out.splitlines()[0] == ("robustness: sweeping delay = 0, 2 x friction = 0.5, 1, 2 seed(s) per point and "
+                                   "scenario, controller sa-mpc")
+    assert "scenario=all  delay=2  friction=0.5  runs=2" in out
+
+
+def test_demo_without_recordings_does_not_say_it_wrote_them(tmp_path, capsys, monkeypatch):
+    from sanav_mj.eval import demo
+
+    seen = {}
+
+    def fake(out, record):
+        seen["record"] = record
+        return demo.DemoResult(rows=[{k: v for k, v in _doc().items()}])
+
+    monkeypatch.setattr(demo, "run_demo", fake)
+    code, out, err = _run(["demo", "--no-rrd", "--out", str(tmp_path)], capsys)
+    assert (code, err, seen["record"]) == (0, "", False)
+    assert out.splitlines()[-1] == f"wrote plots (.png) and JSON (no recordings: --no-rrd) to {tmp_path}/"
+    code, out, err = _run(["demo", "--out", str(tmp_path)], capsys)
+    assert seen["record"] is True
+    assert out.splitlines()[-1] == f"wrote recordings (.rrd), plots (.png) and JSON to {tmp_path}/"
+
+
+def test_demo_output_that_fails_is_one_line_after_the_table(tmp_path, capsys, monkeypatch):
+    from sanav_mj.eval import demo
+
+    def fake(out, record):
+        return demo.DemoResult(rows=[_doc()], written=[out / "a.json"],
+                               failed=[OSError(28, "No space left on device", str(out / "u_shape.rrd"))])
+
+    monkeypatch.setattr(demo, "run_demo", fake)
+    code, out, err = _run(["demo", "--out", str(tmp_path)], capsys)
+    assert code == 2 and "| u_shape | goal |" in out
+    assert err == f"sanav-mj: error: {tmp_path / 'u_shape.rrd'}: cannot write (No space left on device)\n"

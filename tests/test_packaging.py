@@ -52,3 +52,14 @@ def test_builtin_names_load_from_the_installed_wheel(wheel, tmp_path):
     assert Path(pkg_file).is_relative_to(target)
     assert Path(scen_dir) == target / "sanav_mj" / "scenarios"
     assert int(n_obstacles) >= 3
+
+
+def test_every_test_runs_by_default():
+    """No marker deselects tests by default: pytest's addopts carries no ``-m`` filter (a
+    ``slow`` marker that selected nothing was dropped; CI runs ``python -m pytest -q``)."""
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    opts = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["pytest"]["ini_options"]
+    assert "-m" not in opts.get("addopts", "").split()
+    assert "--strict-markers" in opts.get("addopts", "").split()

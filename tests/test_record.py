@@ -333,6 +333,63 @@ def test_context_manager_closes_a_valid_file(tmp_path):
     assert res.returncode == 0, res.stderr
 
 
+def test_ctrl_c_leaves_no_file(tmp_path):
+    path = tmp_path / "sub" / "ctl.rrd"
+    with pytest.raises(KeyboardInterrupt), Recorder(path, make_prep(), "sa-mpc", RecordConfig(flush_every=5)) as rec:
+        replay(rec, make_trace(12))
+        raise KeyboardInterrupt
+    assert not path.parent.exists() or list(path.parent.iterdir()) == []  # no partial file, no .part file
+
+
+def test_a_full_disk_is_an_error_naming_the_file_and_leaves_no_file(tmp_path, monkeypatch):
+    """The SDK's own file sink only logged the write error (a cut file, exit 0): the bytes are
+    written by sanav_mj.outputs, whose write error reaches the caller."""
+    import errno
+
+    from sanav_mj import outputs
+
+    class FullFile:
+        def __init__(self, path, mode):
+            self.fh = open(path, mode)  # noqa: SIM115
+
+        def write(self, data):
+            self.fh.write(data[: len(data) // 2])
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.fh.close()
+
+    monkeypatch.setattr(outputs, "open", FullFile, raising=False)
+    path = tmp_path / "full.rrd"
+    rec = Recorder(path, make_prep(), "sa-mpc")
+    with pytest.raises(OSError) as err:
+        rec.finish(episode_of(replay(rec, make_trace())), DOC)
+    assert (err.value.errno, err.value.filename) == (errno.ENOSPC, str(path))
+    assert "No space left on device" in str(err.value)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_record_episode_equals_streaming(tmp_path):
+    from sanav_mj.record import record_episode
+
+    full = make_trace()
+    streamed = tmp_path / "streamed.rrd"
+    rec = Recorder(streamed, make_prep(), "sa-mpc", RecordConfig(flush_every=1))
+    rec.finish(episode_of(replay(rec, full)), DOC)
+    outcome = type("Outcome", (), {"prepared": make_prep(), "controller": "sa-mpc", "episode": episode_of(full),
+                                   "document": DOC})()
+    after = record_episode(tmp_path / "after.rrd", outcome)
+    a, b = read_rrd(streamed), read_rrd(after)
+    assert a.keys() == b.keys()
+    for name in a:
+        assert sorted(a[name]["steps"]) == sorted(b[name]["steps"]), name
+    np.testing.assert_array_equal(scalars_by_step(a["/plots/velocity/v_cmd"]), scalars_by_step(b["/plots/velocity/v_cmd"]))
+    assert rrd_verify(after).returncode == 0
+
+
 # ---------------------------------------------------------------------------- geometry helpers
 def test_robot_footprint_of_the_packaged_robot():
     """Deck 0.50 x 0.43 m; the wheels (0.19 + 0.025 m) reach the deck's side exactly."""

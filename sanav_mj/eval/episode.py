@@ -209,7 +209,8 @@ def run_scenario(
             controller, prep.scenario, prep.grid, prep.areas, prep.plan, solve_budget_ms=mismatch.solve_budget_ms
         )
         episode = run_episode(plant, ctrl, start, scenario.goal, cfg, mismatch, rng,
-                              on_step=recorder.log_step if recorder else None)
+                              on_step=recorder.log_step if recorder else None,
+                              route=planned_route(prep.plan, scenario.goal) if controller in ROUTE_FOLLOWERS else None)
     doc = episode_json(
         episode,
         scenario=scenario.name,
@@ -224,6 +225,23 @@ def run_scenario(
     if recorder is not None:
         recorder.finish(episode, doc)
     return RunOutcome(prep, controller, start, episode, doc)
+
+
+#: controllers that track the planned route: their ``stuck`` rule measures progress along it.
+#: The penalty MPC (reference straight to the goal), DWA and the DQN drive to the goal
+#: without the plan (and the DQN trains in ``NavEnv``, which has no planner), so theirs is
+#: the reduction of the straight-line distance to the goal.
+ROUTE_FOLLOWERS = ("sa-mpc",)
+
+
+def planned_route(plan: Plan, goal: np.ndarray) -> np.ndarray | None:
+    """The route (P, 2) [m] a plan defines for the ``stuck`` rule: the reference positions,
+    ended by the scenario goal (2,) [m] when the plan projected it; None without a plan."""
+    from sanav_mj.sim.termination import route_of
+
+    if not plan.ok or plan.reference is None:
+        return None
+    return route_of(plan.reference.states[:, :2], goal)
 
 
 def _replan(prep: Prepared, start: np.ndarray) -> Prepared:

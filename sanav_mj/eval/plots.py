@@ -2,7 +2,9 @@
 
 Figures are built on :class:`matplotlib.figure.Figure` objects rendered by the Agg canvas,
 never through ``pyplot``: no global figure state, no GUI backend, safe in worker processes.
-Every function writes one PNG of a fixed pixel size (``figsize * dpi``) and returns its path.
+Every function writes one figure of a fixed pixel size (``figsize * dpi``) in the format of
+the file's extension (PNG for ``.png``; also ``.pdf``, ``.svg``, ...: :func:`figure_formats`),
+whole or not at all (:mod:`sanav_mj.outputs`), and returns its path.
 
 - :func:`plot_areas`: the paper's Fig. 2 (scene -> inflated grid -> quadtree -> merged safe
   areas and graph) and Fig. 4 (corridor, waypoints, interpolated path, smoothed reference).
@@ -42,11 +44,40 @@ _GOAL = "#c0392b"
 _ROBOT = "#34495e"
 
 
+def figure_formats() -> dict[str, str]:
+    """The file formats figures can be written in: extension (no dot) -> description
+    (matplotlib's: png, pdf, svg, eps, ...)."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    return dict(FigureCanvasBase.get_supported_filetypes())
+
+
+def figure_format(path: str | Path) -> str:
+    """The format of a figure file from its extension (``a.pdf`` -> ``pdf``; none -> ``png``,
+    e.g. ``/dev/stdout``).
+
+    Raises:
+        ValueError: the extension is not a format of :func:`figure_formats` (``r.txt``).
+    """
+    ext = Path(path).suffix.lower().lstrip(".")
+    if not ext:
+        return "png"
+    formats = figure_formats()
+    if ext not in formats:
+        raise ValueError(f"{path}: expected a figure file ending in one of .{', .'.join(sorted(formats))} "
+                         f"(none: PNG), got '.{ext}'")
+    return ext
+
+
 def _save(fig: Figure, path: str | Path) -> Path:
+    """Write ``fig`` in the format of ``path``'s extension (PNG for ``.png``), whole or not at all."""
+    from sanav_mj.outputs import atomic_path
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    fmt = figure_format(path)
     FigureCanvasAgg(fig)
-    fig.savefig(path, format="png", dpi=fig.dpi)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=fmt, dpi=fig.dpi)
     return path
 
 

@@ -240,6 +240,11 @@ class SafeAreaMap:
     merge: str
     timing_ms: dict[str, float] = field(default_factory=dict)
 
+    @property
+    def rects(self) -> np.ndarray:
+        """(R, 4) [m] the merged safe rectangles ``[xmin, ymin, xmax, ymax]`` (``areas.rects``)."""
+        return self.areas.rects
+
     def to_json(self) -> dict:
         """The mapping part of the ``areas --json`` document (DESIGN.md): plain Python types.
 

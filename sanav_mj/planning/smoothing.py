@@ -184,12 +184,6 @@ def second_derivative_gram(length: float, n_intervals: int) -> np.ndarray:
     return ab
 
 
-def _banded(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, n: int) -> np.ndarray:
-    """Sum (row <= col) entries into (4, n) upper banded storage."""
-    flat = (DEGREE + rows - cols) * n + cols
-    return np.bincount(flat, weights=vals, minlength=(DEGREE + 1) * n).reshape(DEGREE + 1, n)
-
-
 @dataclass(frozen=True)
 class SmoothingSpline:
     """A fitted cubic B-spline ``S(u)`` on uniform knots, u in ``[0, L]`` [m].
@@ -296,21 +290,6 @@ class SmoothingProblem:
         mu = np.linalg.solve(hz, self.H.T @ x - self.d)  # (2 constraints, 2 coords)
         c = x - z @ mu
         return SmoothingSpline(self.length, self.n_intervals, c, float(lam))
-
-
-def fit_smoothing_spline(u: np.ndarray, points: np.ndarray, lam: float, knot_spacing: float) -> SmoothingSpline:
-    """Fit the cubic smoothing B-spline of eq. 7 with clamped ends (see the module docstring).
-
-    Args:
-        u: (M,) [m] uniform arc-length parameters from 0 to L (M >= 2, L > 0).
-        points: (M, 2) [m] interpolated path points.
-        lam: [m^4] smoothing weight (> 0).
-        knot_spacing: [m] target knot interval.
-
-    Returns:
-        The fitted :class:`SmoothingSpline`.
-    """
-    return SmoothingProblem(u, points, knot_spacing).solve(lam)
 
 
 # --------------------------------------------------------------------------------------

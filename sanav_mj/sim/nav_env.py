@@ -17,8 +17,18 @@ with probability ``random_endpoints``, two random free points of the map.
   (a small negative constant) ``+ proximity * max(0, 1 - min_ray / proximity_m)`` (a
   small penalty near obstacles); plus ``goal`` on reaching the goal (terminated) and
   ``collision`` on any robot-obstacle contact or on leaving the workspace (terminated).
-- Truncation: after ``max_steps`` or when the distance to the goal has shrunk by less than
-  ``stuck_progress_m`` over ``stuck_window_s`` (the runner's ``stuck`` rule).
+- Endings: the rules of :mod:`sanav_mj.sim.termination`, the same code and
+  :class:`~sanav_mj.sim.termination.TerminationConfig` the runner evaluates with:
+  ``collision`` and ``goal`` terminate; ``stuck`` (no progress over the window; without a
+  planner the progress is the reduction of the straight-line distance to the goal, as for
+  the DQN controller in the runner) and ``timeout`` (``ceil(time_limit_s / dt)`` steps)
+  truncate. The environment adds one rule of its own, ``out_of_bounds`` (the footprint
+  leaves the workspace; terminated, with the collision reward) between ``collision`` and
+  ``goal``: the generated maps have no walls at the workspace edge.
+- Rendering: ``render_mode="rgb_array"`` gives a top-down (H, W, 3) uint8 image of the map
+  (obstacles dark, robot blue with a heading tick, goal green), drawn with NumPy (no
+  OpenGL needed). ``gymnasium.make("sanav_mj/Nav-v0")`` builds the environment once
+  ``sanav_mj`` is imported (see :mod:`sanav_mj.envs`).
 
 ``info`` at every step has ``reason`` (``"running"``, ``"goal"``, ``"collision"``,
 ``"out_of_bounds"``, ``"timeout"``, ``"stuck"``) and, at the end of an episode,
@@ -30,7 +40,7 @@ from __future__ import annotations
 import math
 import os
 import tempfile
-from collections import OrderedDict, deque
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -40,6 +50,7 @@ import numpy as np
 from sanav_mj.control.dqn import ActionSpec, ObservationSpec, build_observation
 from sanav_mj.scene import Scenario
 from sanav_mj.sim.plant import Plant
+from sanav_mj.sim.termination import Termination, TerminationConfig
 
 #: Called with a map seed, returns a training scenario.
 MapFactory = Callable[[int], Scenario]
@@ -85,10 +96,10 @@ class NavEnvConfig:
 
     Attributes:
         dt: [s] control period (zero-order hold of each action).
-        max_steps: steps after which the episode is truncated (``timeout``).
-        goal_tolerance_m: [m] the goal is reached when the robot centre is this close.
-        stuck_window_s: [s] / stuck_progress_m: [m] truncate (``stuck``) when the distance
-            to the goal shrank by less than ``stuck_progress_m`` over ``stuck_window_s``.
+        termination: goal tolerance, stuck window and progress, time limit: the runner's
+            rules and defaults (:class:`~sanav_mj.sim.termination.TerminationConfig`); the
+            shipped policy was trained with ``time_limit_s=40`` (400 steps, see
+            ``scripts/train_dqn.py``).
         map_seed_start: first training-map seed.
         n_maps: number of training maps (seeds ``map_seed_start .. + n_maps - 1``).
         cache_maps: how many built maps (scenario + plant) are kept in memory (LRU).
@@ -104,10 +115,7 @@ class NavEnvConfig:
     """
 
     dt: float = 0.1
-    max_steps: int = 400
-    goal_tolerance_m: float = 0.15
-    stuck_window_s: float = 8.0
-    stuck_progress_m: float = 0.05
+    termination: TerminationConfig = field(default_factory=TerminationConfig)
     map_seed_start: int = 100_000
     n_maps: int = 1000
     cache_maps: int = 1000
@@ -120,18 +128,16 @@ class NavEnvConfig:
     reward: RewardConfig = field(default_factory=RewardConfig)
 
     def __post_init__(self) -> None:
-        for name in ("dt", "goal_tolerance_m", "stuck_window_s"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"NavEnvConfig.{name}: expected a finite number > 0, got {value!r}")
-        for name in ("max_steps", "n_maps", "cache_maps"):
+        if not (isinstance(self.dt, (int, float)) and math.isfinite(self.dt) and self.dt > 0):
+            raise ValueError(f"NavEnvConfig.dt: expected a finite number > 0, got {self.dt!r}")
+        if not isinstance(self.termination, TerminationConfig):
+            raise ValueError(f"NavEnvConfig.termination: expected a TerminationConfig, got {self.termination!r}")
+        for name in ("n_maps", "cache_maps"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ValueError(f"NavEnvConfig.{name}: expected an int >= 1, got {value!r}")
         if not isinstance(self.map_seed_start, int) or self.map_seed_start < 0:
             raise ValueError(f"NavEnvConfig.map_seed_start: expected an int >= 0, got {self.map_seed_start!r}")
-        if self.stuck_progress_m < 0:
-            raise ValueError(f"NavEnvConfig.stuck_progress_m: expected >= 0, got {self.stuck_progress_m!r}")
         if not (0.0 <= self.random_endpoints <= 1.0):
             raise ValueError(f"NavEnvConfig.random_endpoints: expected a probability in [0, 1], got {self.random_endpoints!r}")
         for name in ("endpoint_margin_m", "min_goal_distance_m"):
@@ -176,13 +182,25 @@ class NavEnv(gym.Env):
         config: environment settings.
         map_factory: ``f(seed) -> Scenario`` building a training map; default
             :func:`training_scenario` (generated clutter, files in a temporary folder).
+        render_mode: None or ``"rgb_array"`` (top-down image, see :meth:`render`).
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
 
-    def __init__(self, config: NavEnvConfig = NavEnvConfig(), map_factory: MapFactory | None = None) -> None:
+    #: [px/m] scale of the rendered image
+    RENDER_PX_PER_M = 20.0
+
+    def __init__(self, config: NavEnvConfig = NavEnvConfig(), map_factory: MapFactory | None = None,
+                 render_mode: str | None = None) -> None:
         super().__init__()
+        if not isinstance(config, NavEnvConfig):
+            raise ValueError(f"config: expected a NavEnvConfig, got {config!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode: expected None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.config = config
+        self.render_mode = render_mode
+        self.metadata = {**self.metadata, "render_fps": round(1.0 / config.dt)}
+        self._tmp: tempfile.TemporaryDirectory | None = None
         if map_factory is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="sanav_nav_env_")
             folder = self._tmp.name
@@ -196,8 +214,8 @@ class NavEnv(gym.Env):
         self._goal = np.zeros(2)
         self._dist = 0.0
         self._steps = 0
-        self._window = max(1, int(round(config.stuck_window_s / config.dt)))
-        self._hist: deque[float] = deque(maxlen=self._window + 1)
+        self._rules = Termination(config.termination, config.dt, self._goal)
+        self._backgrounds: dict[int, np.ndarray] = {}
         self._ranges = np.zeros(config.obs.n_rays)
         self.map_seed = -1
 
@@ -269,7 +287,7 @@ class NavEnv(gym.Env):
         self._plant.reset(np.array([start_xy[0], start_xy[1], yaw]))
         self._steps = 0
         self._dist = float(np.hypot(*(start_xy - goal)))
-        self._hist.clear()
+        self._rules = Termination(cfg.termination, cfg.dt, goal)
         return self._observe(), {"reason": "running", "map_seed": map_seed}
 
     def _random_endpoints(self, sc: Scenario) -> tuple[np.ndarray, np.ndarray] | None:
@@ -317,27 +335,74 @@ class NavEnv(gym.Env):
         if rw.proximity > 0:
             reward -= rw.proximity * max(0.0, 1.0 - float(self._ranges.min()) / rw.proximity_m)
         self._dist = dist
-        terminated = truncated = False
-        reason = "running"
-        if contacts > 0 or p.robot_obstacle_contacts() > 0:
+        rules = self._rules
+        reason = rules.arrival(pose[:2], max(contacts, p.robot_obstacle_contacts()))
+        if reason != "collision" and self._out_of_bounds(pose):  # a collision with the workspace edge
+            reason = "out_of_bounds"
+        if reason is None:
+            reason = rules.stalled(pose[:2], self._steps)
+        terminated = reason in ("collision", "out_of_bounds", "goal")
+        truncated = reason in ("stuck", "timeout")
+        if reason in ("collision", "out_of_bounds"):
             reward += rw.collision
-            terminated, reason = True, "collision"
-        elif self._out_of_bounds(pose):
-            reward += rw.collision
-            terminated, reason = True, "out_of_bounds"
-        elif dist <= cfg.goal_tolerance_m:
+        elif reason == "goal":
             reward += rw.goal
-            terminated, reason = True, "goal"
-        else:
-            self._hist.append(dist)
-            if len(self._hist) > self._window and self._hist[0] - dist < cfg.stuck_progress_m:
-                truncated, reason = True, "stuck"
-            elif self._steps >= cfg.max_steps:
-                truncated, reason = True, "timeout"
+        reason = reason or "running"
         info: dict[str, Any] = {"reason": reason, "map_seed": self.map_seed}
         if terminated or truncated:
             info["is_success"] = reason == "goal"
         return obs, float(reward), terminated, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        """The current state as a top-down image when ``render_mode == "rgb_array"``, else None.
+
+        Returns:
+            (H, W, 3) uint8, ``RENDER_PX_PER_M`` pixels per metre over the workspace (row 0 at
+            the top, ``ymax``): free floor light grey, obstacles dark grey, the goal tolerance
+            disc green, the robot's footprint disc blue with a white tick along its heading.
+        """
+        if self.render_mode is None:
+            return None
+        p = self.plant
+        xs, ys = self._pixel_centres(p.scenario.bounds)
+        key = id(p)
+        img = self._backgrounds.get(key)
+        if img is None:
+            free = np.ones(xs.shape, dtype=bool)
+            pts = np.column_stack([xs.ravel(), ys.ravel()])
+            for o in p.scenario.obstacles:
+                free &= (o.signed_distance(pts) > 0).reshape(xs.shape)
+            img = np.where(free[..., None], np.uint8(225), np.uint8(60)).repeat(3, axis=2).astype(np.uint8)
+            self._backgrounds = {key: img}
+        img = img.copy()
+        goal = np.hypot(xs - self._goal[0], ys - self._goal[1]) <= self.config.termination.goal_tolerance_m
+        img[goal] = (40, 170, 60)
+        x, y, yaw = p.pose()
+        r = p.robot.footprint_radius
+        img[np.hypot(xs - x, ys - y) <= r] = (40, 90, 200)
+        u = (xs - x) * math.cos(yaw) + (ys - y) * math.sin(yaw)
+        n = -(xs - x) * math.sin(yaw) + (ys - y) * math.cos(yaw)
+        img[(u >= 0) & (u <= r) & (np.abs(n) <= 0.5 / self.RENDER_PX_PER_M + 0.02)] = (255, 255, 255)
+        return img
+
+    def _pixel_centres(self, bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(H, W) world x and y [m] of the pixel centres (row 0 at ``ymax``)."""
+        xmin, ymin, xmax, ymax = (float(b) for b in bounds)
+        k = self.RENDER_PX_PER_M
+        w, h = max(1, int(round((xmax - xmin) * k))), max(1, int(round((ymax - ymin) * k)))
+        cx = xmin + (np.arange(w) + 0.5) * (xmax - xmin) / w
+        cy = ymax - (np.arange(h) + 0.5) * (ymax - ymin) / h
+        return np.meshgrid(cx, cy)
+
+    def close(self) -> None:
+        """Release the cached maps and the temporary folder of generated maps (idempotent)."""
+        self._maps.clear()
+        self._backgrounds.clear()
+        self._plant = None
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+        super().close()
 
 
 # ---------------------------------------------------------------------- training

@@ -21,41 +21,35 @@ import numpy as np
 from sanav_mj.control.base import Command, Controller, Observation
 from sanav_mj.sim.mismatch import Mismatch
 from sanav_mj.sim.plant import Plant
+from sanav_mj.sim.termination import Progress, RouteProgress, Termination, TerminationConfig
 
 REASONS = ("goal", "collision", "timeout", "stuck", "solver_failure", "no_path", "bad_measurement")
 
 
 @dataclass(frozen=True)
-class RunConfig:
-    """Episode settings.
+class RunConfig(TerminationConfig):
+    """Episode settings: the shared termination rules plus the runner's own.
+
+    The termination fields (``time_limit_s``, ``goal_tolerance_m``, ``stuck_window_s``,
+    ``stuck_progress_m``) are those of :class:`~sanav_mj.sim.termination.TerminationConfig`
+    (the same rules :class:`~sanav_mj.sim.nav_env.NavEnv` trains under).
 
     Attributes:
-        time_limit_s: [s] simulated time after which the run ends with ``timeout``.
-        goal_tolerance_m: [m] the run succeeds when the robot centre is this close to the goal.
-        stuck_window_s: [s] window over which progress is measured.
-        stuck_progress_m: [m] the run ends with ``stuck`` when the distance to the goal shrank
-            by less than this over the last ``stuck_window_s`` (and the goal is not reached).
         max_solver_failures: consecutive solver failures after which the run ends with
             ``solver_failure`` (the robot has been brought to a stop by the fallback).
         n_rays: number of range rays given to controllers that ask for them.
         ray_range_m: [m] maximum ray range.
     """
 
-    time_limit_s: float = 60.0
-    goal_tolerance_m: float = 0.15
-    stuck_window_s: float = 8.0
-    stuck_progress_m: float = 0.05
     max_solver_failures: int = 20
     n_rays: int = 36
     ray_range_m: float = 5.0
 
     def __post_init__(self) -> None:
-        for name in ("time_limit_s", "goal_tolerance_m", "stuck_window_s", "ray_range_m"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"RunConfig.{name}: expected a finite number > 0, got {value!r}")
-        if self.stuck_progress_m < 0:
-            raise ValueError(f"RunConfig.stuck_progress_m: expected >= 0, got {self.stuck_progress_m!r}")
+        super().__post_init__()
+        value = self.ray_range_m
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise ValueError(f"RunConfig.ray_range_m: expected a finite number > 0, got {value!r}")
         if self.max_solver_failures < 1 or self.n_rays < 1:
             raise ValueError("RunConfig.max_solver_failures and n_rays: expected >= 1")
 
@@ -151,6 +145,7 @@ def run_episode(
     rng: np.random.Generator | None = None,
     measurement_fault: Callable[[int, np.ndarray], np.ndarray] | None = None,
     on_step: Callable[[int, EpisodeTrace], None] | None = None,
+    route: np.ndarray | None = None,
 ) -> Episode:
     """Run one closed-loop episode.
 
@@ -168,6 +163,10 @@ def run_episode(
             run stops the robot and ends with ``bad_measurement``.
         on_step: optional ``f(step, trace)`` called after each step is recorded (the edge
             hook for live recording; algorithms never log themselves).
+        route: optional (P, 2) [m] planned route the controller follows; ``stuck`` then
+            measures progress along it (:class:`~sanav_mj.sim.termination.RouteProgress`),
+            else as the reduction of the straight-line distance to the goal (see
+            :mod:`sanav_mj.sim.termination`).
 
     Returns:
         The :class:`Episode` with its trace.
@@ -179,8 +178,8 @@ def run_episode(
     controller.reset(plant.pose())
     trace = EpisodeTrace()
     delay_line: deque[tuple[float, float]] = deque([(0.0, 0.0)] * mismatch.delay)
-    window = max(1, int(round(config.stuck_window_s / dt)))
-    dist_hist: deque[float] = deque(maxlen=window + 1)
+    progress: Progress | None = RouteProgress(route) if route is not None else None
+    rules = Termination(config, dt, goal, progress)
     last_valid = plant.pose()
     bad_streak = 0
     consecutive_failures = 0
@@ -189,9 +188,8 @@ def run_episode(
     reason = "timeout"
     success = False
     wall0 = time.perf_counter()
-    max_steps = int(math.ceil(config.time_limit_s / dt))
     step = 0
-    for step in range(max_steps):
+    for step in range(rules.max_steps):
         t = plant.time
         true_pose = plant.pose()
         meas = true_pose.copy()
@@ -255,24 +253,17 @@ def run_episode(
 
         failures += not cmd.ok
         consecutive_failures = consecutive_failures + 1 if not cmd.ok else 0
-        if contacts > 0:
-            collisions += 1
-            reason = "collision"
-            break
+        collisions += contacts > 0
         pose_now = plant.pose()
-        dist = float(np.hypot(*(pose_now[:2] - goal)))
-        if dist <= config.goal_tolerance_m:
-            reason, success = "goal", True
-            break
-        if bad_streak >= 5:
-            reason = "bad_measurement"
-            break
-        if consecutive_failures >= config.max_solver_failures:
-            reason = "solver_failure"
-            break
-        dist_hist.append(dist)
-        if len(dist_hist) > window and dist_hist[0] - dist < config.stuck_progress_m:
-            reason = "stuck"
+        ended = rules.arrival(pose_now[:2], contacts)
+        if ended is None and bad_streak >= 5:
+            ended = "bad_measurement"
+        if ended is None and consecutive_failures >= config.max_solver_failures:
+            ended = "solver_failure"
+        if ended is None:
+            ended = rules.stalled(pose_now[:2], step + 1)
+        if ended is not None:
+            reason, success = ended, ended == "goal"
             break
     plant.set_wheel_command(0.0, 0.0)
     return Episode(

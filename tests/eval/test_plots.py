@@ -311,3 +311,27 @@ def test_plot_run_draws_what_each_controller_tracked(prep, tmp_path, monkeypatch
         np.testing.assert_allclose(line.get_xydata(), path)
     if controller in ("dwa", "dqn"):
         assert blue == [] and not any("reference (" in t for t in legend)
+
+
+def test_figure_format_from_the_extension():
+    from sanav_mj.eval.plots import figure_format
+
+    assert [figure_format(p) for p in ("a.png", "b.PDF", "c.svg", "/dev/stdout")] == ["png", "pdf", "svg", "png"]
+    with pytest.raises(ValueError, match=r"r\.txt: expected a figure file ending in one of .*\.pdf.* got '\.txt'"):
+        figure_format("r.txt")
+
+
+def test_plot_heatmap_pdf_and_svg_and_no_partial_file(tmp_path, monkeypatch):
+    for name, magic in (("h.pdf", b"%PDF"), ("h.svg", b"<?xml")):
+        out = plot_heatmap(np.eye(2), "mass", [1, 2], "delay", [0, 1], "u_shape / sa-mpc: success rate [%]",
+                           tmp_path / name)
+        assert out.read_bytes()[: len(magic)] == magic
+    from matplotlib.figure import Figure
+
+    def interrupted(self, *a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Figure, "savefig", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        plot_heatmap(np.eye(2), "mass", [1, 2], "delay", [0, 1], "t", tmp_path / "cut.png")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["h.pdf", "h.svg"]

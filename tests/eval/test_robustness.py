@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,7 +25,9 @@ PNGS = ("success_rate.png", "collision_rate.png", "min_clearance.png")
 
 def test_parse_sweep_known_answers():
     assert parse_sweep(["wheel_radius=0.9,1.0,1.1"]) == [("wheel_radius", [0.9, 1.0, 1.1])]
-    assert parse_sweep(["friction=0.3,1", "delay=0,1,2"]) == [("friction", [0.3, 1.0]), ("delay", [0.0, 1.0, 2.0])]
+    assert parse_sweep(["friction=0.3,1", "delay=0,1,2"]) == [("friction", [0.3, 1.0]), ("delay", [0, 1, 2])]
+    (_, fr), (_, de) = parse_sweep(["friction=1", "delay=2.0"])
+    assert type(fr[0]) is float and type(de[0]) is int  # integer keys stay integers (CSV, JSON, titles)
     assert parse_sweep(["pos_noise=0.02"]) == [("pos_noise", [0.02])]
     assert parse_sweep([" mass =2, 3"]) == [("mass", [2.0, 3.0])]
 
@@ -364,7 +367,86 @@ def test_runs_that_raise_are_left_out_of_the_rates(tmp_path, monkeypatch):
     bad = [r for r in runs if r["reason"] == "error"]
     assert len(bad) == 4 and {r["error"] for r in bad} == {"RuntimeError: boom"}
     assert {(r["mass"], r["delay"], r["mismatch"]) for r in bad} == {
-        ("2.0", "0.0", "mass=2.0 delay=0 friction=0.5"), ("2.0", "1.0", "mass=2.0 delay=1 friction=0.5")}
+        ("2.0", "0", "mass=2.0 delay=0 friction=0.5"), ("2.0", "1", "mass=2.0 delay=1 friction=0.5")}
     cells = _read(out / "summary.csv")
     assert [c["errors"] for c in cells] == ["0", "3", "0", "1"]
+    _assert_pngs(out)
+
+
+# --------------------------------------------------------------------------- outputs: integers, per scenario, no path
+
+
+def _capture_heat_maps(monkeypatch):
+    from sanav_mj.eval import plots
+
+    maps = {}
+    real = plots.plot_heatmap
+
+    def spy(values, x_key, x_values, y_key, y_values, title, path, **kw):
+        maps[path.relative_to(path.parent.parent) if path.parent.name == "per_scenario" else path.name] = (
+            np.asarray(values, dtype=float), list(x_values), list(y_values or []), title)
+        return real(values, x_key, x_values, y_key, y_values, title, path, **kw)
+
+    monkeypatch.setattr(plots, "plot_heatmap", spy)
+    return maps
+
+
+def test_integer_keys_are_written_as_integers(tmp_path, monkeypatch):
+    monkeypatch.setattr(robustness, "run_jobs", lambda jobs, workers, desc, **kw: [_fake_doc(j) for j in jobs])
+    maps = _capture_heat_maps(monkeypatch)
+    out = tmp_path / "rb"
+    run_robustness(**_sweep_args(out))
+    assert {r["delay"] for r in _read(out / "robustness.csv")} == {"0", "1"}
+    assert [c["delay"] for c in _read(out / "summary.csv")] == ["0", "0", "1", "1"]
+    assert json.loads((out / "meta.json").read_text())["sweep"] == {"mass": [1.0, 2.0], "delay": [0, 1]}
+    _, xs, ys, title = maps["success_rate.png"]
+    assert ys == ["0", "1"] and xs == ["1.0", "2.0"]
+    assert title.startswith("single_rect / sa-mpc: success rate [%]")
+
+
+def test_summary_and_heat_maps_per_scenario_and_pooled(tmp_path, monkeypatch):
+    def doc(job):
+        d = _fake_doc(job)
+        if job.scenario == "u_shape":  # every u_shape run fails: the pooled rate is the mean of the two
+            d.update(success=False, reason="stuck")
+        return d
+
+    monkeypatch.setattr(robustness, "run_jobs", lambda jobs, workers, desc, **kw: [doc(j) for j in jobs])
+    maps = _capture_heat_maps(monkeypatch)
+    out = tmp_path / "rb"
+    summary = run_robustness(**_sweep_args(out, scenarios=["single_rect", "u_shape"]))
+    pooled = [r for r in summary if r["scenario"] == robustness.POOLED]
+    per = {(r["scenario"], r["mass"], r["delay"]): r for r in summary if r["scenario"] != robustness.POOLED}
+    assert len(pooled) == 4 and len(per) == 8
+    cell = {(r["mass"], r["delay"]): r for r in pooled}[(1.0, 0)]
+    assert (cell["runs"], cell["success_rate"]) == (6, 50.0)
+    assert per[("single_rect", 1.0, 0)]["success_rate"] == 100.0 and per[("u_shape", 1.0, 0)]["success_rate"] == 0.0
+    assert per[("u_shape", 1.0, 0)]["runs"] == 3
+    by = _read(out / "summary_by_scenario.csv")
+    assert [(c["scenario"], c["success_rate"]) for c in by if (c["mass"], c["delay"]) == ("1.0", "0")] == [
+        ("single_rect", "100.0"), ("u_shape", "0.0")]
+    assert {c["scenario"] for c in _read(out / "summary.csv")} == {"all"}
+    assert maps["success_rate.png"][3].startswith("single_rect, u_shape / sa-mpc: success rate [%]")
+    for name, rate in (("single_rect", 100.0), ("u_shape", 0.0)):
+        values, _, _, title = maps[Path("per_scenario") / f"{name}_success_rate.png"]
+        assert title.startswith(f"{name} / sa-mpc: success rate [%]")
+        assert values[0, 0] == rate
+        assert (out / "per_scenario" / f"{name}_min_clearance.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_runs_without_a_clearance_give_an_empty_field_not_inf(tmp_path, monkeypatch):
+    """A goal with no path: the run never moved and has no clearance (None); the point has none either."""
+    def doc(job):
+        d = _fake_doc(job)
+        d.update(success=False, reason="no_path", steps=0, min_clearance_m=None)
+        return d
+
+    monkeypatch.setattr(robustness, "run_jobs", lambda jobs, workers, desc, **kw: [doc(j) for j in jobs])
+    out = tmp_path / "rb"
+    summary = run_robustness(**_sweep_args(out))
+    assert all(math.isnan(r["min_clearance_m"]) and r["success_rate"] == 0.0 for r in summary)
+    cells = _read(out / "summary.csv")
+    assert [c["min_clearance_m"] for c in cells] == [""] * 4
+    assert "inf" not in (out / "summary.csv").read_text()
+    assert {r["min_clearance_m"] for r in _read(out / "robustness.csv")} == {""}
     _assert_pngs(out)

@@ -16,6 +16,7 @@ gym = pytest.importorskip("gymnasium")
 from sanav_mj.control.base import Observation  # noqa: E402
 from sanav_mj.control.dqn import ActionSpec, DQNController, DQNPolicy, QNetwork, build_observation  # noqa: E402
 from sanav_mj.scene import load_scenario  # noqa: E402
+from sanav_mj.sim.termination import TerminationConfig  # noqa: E402
 from sanav_mj.sim.nav_env import (  # noqa: E402
     NavEnv,
     NavEnvConfig,
@@ -63,13 +64,53 @@ def pinned(env: NavEnv, map_seed: int, yaw: float = 0.0):
                                            "random_endpoints": False})
 
 
-def test_passes_gymnasium_env_checker(maps):
+def test_passes_gymnasium_env_checker_without_a_warning(maps):
+    """Made through gymnasium (so the checker also builds each declared render mode from the
+    spec), every warning an error."""
+    import sanav_mj  # noqa: F401  (registers the environment)
     from gymnasium.utils.env_checker import check_env
 
-    env = make_env(maps)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # only "no render modes / no spec" notices
-        check_env(env, skip_render_check=True)
+        warnings.simplefilter("error")
+        env = gym.make("sanav_mj/Nav-v0", config=NavEnvConfig(map_seed_start=0, n_maps=len(maps)),
+                       map_factory=lambda s: maps[s], render_mode="rgb_array")
+        check_env(env.unwrapped)
+    env.close()
+
+
+def test_gymnasium_make_builds_the_default_training_env():
+    import sanav_mj  # noqa: F401
+    from sanav_mj.envs import NAV_ENV_ID
+
+    env = gym.make(NAV_ENV_ID)
+    assert isinstance(env.unwrapped, NavEnv)
+    assert env.unwrapped.config == NavEnvConfig()
+    assert env.unwrapped.metadata["render_modes"] == ["rgb_array"]
+    obs, info = env.reset(seed=1)
+    assert env.observation_space.contains(obs) and info["reason"] == "running"
+    env.close()
+    env.close()  # idempotent
+
+
+def test_render_draws_the_map_robot_and_goal(maps):
+    env = NavEnv(NavEnvConfig(map_seed_start=0, n_maps=len(maps)), map_factory=lambda s: maps[s],
+                 render_mode="rgb_array")
+    pinned(env, 1)
+    img = env.render()
+    k = NavEnv.RENDER_PX_PER_M
+    assert img.shape == (8 * k, 12 * k, 3) and img.dtype == np.uint8  # workspace 12 m x 8 m
+
+    def pixel(x, y):  # row 0 is y = 4, column 0 is x = -2
+        return tuple(img[int((4.0 - y) * k), int((x + 2.0) * k)])
+
+    assert pixel(1.5, 0.5) == (60, 60, 60)  # the wall at x = 1.5
+    assert pixel(4.0, 0.0) == (40, 170, 60)  # the goal
+    assert pixel(-0.1, 0.0) == (40, 90, 200)  # the robot (facing +x: the tick is ahead of the centre)
+    assert pixel(0.1, 0.0) == (255, 255, 255)
+    assert pixel(6.0, -2.0) == (225, 225, 225)  # free floor
+    assert make_env(maps).render() is None
+    with pytest.raises(ValueError, match="render_mode"):
+        NavEnv(render_mode="human")
 
 
 def test_spaces_match_the_shared_specs(maps):
@@ -184,7 +225,7 @@ def test_goal_terminates_with_the_bonus(maps):
             break
     assert term and info["reason"] == "goal" and info["is_success"] is True
     assert r > env.config.reward.goal - 0.5
-    assert np.hypot(*(env.plant.pose()[:2] - [0.5, 0.0])) <= env.config.goal_tolerance_m
+    assert np.hypot(*(env.plant.pose()[:2] - [0.5, 0.0])) <= env.config.termination.goal_tolerance_m
 
 
 def test_leaving_the_workspace_is_a_collision(maps):
@@ -199,7 +240,7 @@ def test_leaving_the_workspace_is_a_collision(maps):
 
 
 def test_standing_still_is_truncated_as_stuck_after_the_window(maps):
-    env = make_env(maps, stuck_window_s=2.0)
+    env = make_env(maps, termination=TerminationConfig(stuck_window_s=2.0))
     pinned(env, 0)
     window = 20
     for k in range(1, 100):
@@ -211,7 +252,7 @@ def test_standing_still_is_truncated_as_stuck_after_the_window(maps):
 
 
 def test_timeout_truncates(maps):
-    env = make_env(maps, max_steps=7)
+    env = make_env(maps, termination=TerminationConfig(time_limit_s=0.7))
     pinned(env, 0)
     for k in range(1, 20):
         *_, term, trunc, info = env.step(FORWARD)
@@ -259,7 +300,7 @@ def test_controller_and_env_choose_the_same_action(maps):
 
 
 def test_evaluate_greedy_counts_outcomes(maps):
-    env = make_env(maps, max_steps=30)
+    env = make_env(maps, termination=TerminationConfig(time_limit_s=3.0))
     res = evaluate_greedy(env, lambda obs: FORWARD, episodes=6, seed=0)
     assert res["episodes"] == 6
     assert sum(res["reasons"].values()) == 6
