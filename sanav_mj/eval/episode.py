@@ -186,7 +186,8 @@ def run_scenario(
         prep0 = None
     start = initial_pose(scenario, seed, yaw)
     # <option timestep> against the control period, before any output is created (ScenarioError, exit 2).
-    check_timestep(scenario, controller_obj.dt if controller_obj is not None else planner_config(scenario.robot).dt)
+    # The period: the injected controller's dt, else the built controllers' (the reference step).
+    check_timestep(scenario, getattr(controller_obj, "dt", None) or planner_config(scenario.robot).dt)
     t0 = time.perf_counter()
     # The plan starts from the actual start pose; the map does not depend on it.
     prep = prepare(scenario, resolution=prep0.grid.resolution if prep0 else resolution, start=start) \
