@@ -218,8 +218,11 @@ def test_values_round_trip(recorded):
     trans = np.array([r[0] for r in e["data"]["Transform3D:translation"]])[order]
     quat = np.array([r[0] for r in e["data"]["Transform3D:quaternion"]])[order]
     poses = np.vstack((full.poses(), [[4.0, 0.0, 3.0]]))
-    np.testing.assert_allclose(trans[:, :2], poses[:, :2], atol=1e-6)
-    np.testing.assert_allclose(2 * np.arctan2(quat[:, 2], quat[:, 3]), poses[:, 2], atol=1e-6)
+    # float32 in the file: rounding to nearest is within half a float32 ulp of the largest coordinate
+    np.testing.assert_allclose(trans[:, :2], poses[:, :2], rtol=0, atol=0.5 * float(np.spacing(np.float32(np.abs(poses[:, :2]).max()))))
+    # float32 quaternion components (each within 2^-25 of a unit-norm value): the half-angle
+    # atan2 moves by <= (|cos| + |sin|) 2^-25 <= sqrt(2) 2^-25, the yaw by twice that (8.4e-8)
+    np.testing.assert_allclose(2 * np.arctan2(quat[:, 2], quat[:, 3]), poses[:, 2], rtol=0, atol=2 * np.sqrt(2) * 2.0**-25 + 4 * np.finfo(float).eps)
     # Negative margin at step 5 colours that horizon's last point red.
     hp = ents["/world/horizon/points"]
     row = hp["steps"].index(5)
@@ -425,6 +428,8 @@ def test_cli_run_writes_a_recording_of_every_step(tmp_path):
     np.testing.assert_allclose(scalars_by_step(ents["/plots/velocity/v_cmd"]), doc["trace"]["v"], atol=1e-12)
     e = ents["/world/robot"]
     trans = np.array([r[0] for r in e["data"]["Transform3D:translation"]])[np.argsort(e["steps"])]
-    np.testing.assert_allclose(trans[:steps, 0], doc["trace"]["x"], atol=1e-5)  # float32 in the file
+    # float32 in the file: within half a float32 ulp of the largest |x|
+    np.testing.assert_allclose(trans[:steps, 0], doc["trace"]["x"], rtol=0,
+                               atol=0.5 * float(np.spacing(np.float32(np.abs(doc["trace"]["x"]).max()))))
     res = rrd_verify(rrd)
     assert res.returncode == 0, res.stderr
