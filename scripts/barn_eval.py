@@ -122,7 +122,11 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("bench", type=Path)
     s.add_argument("--worlds", type=Path, required=True)
     args = parser.parse_args(argv)
-    return cmd_worlds(args) if args.cmd == "worlds" else cmd_score(args)
+    try:
+        return cmd_worlds(args) if args.cmd == "worlds" else cmd_score(args)
+    except (OSError, ValueError, KeyError) as err:  # ScenarioError is a ValueError
+        print(f"barn_eval: {err}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

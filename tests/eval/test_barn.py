@@ -60,3 +60,38 @@ def test_clearance_grid_round_fast_path_matches_signed_distance():
     dist, pts = clearance_grid(obs, BOUNDS, 0.05)
     ref = np.min([o.signed_distance(pts.reshape(-1, 2)) for o in obs], axis=0).reshape(dist.shape)
     np.testing.assert_allclose(dist, ref, atol=1e-12)
+
+
+def test_barn_eval_script_worlds_and_score(tmp_path):
+    import csv
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from sanav_mj.generate import write_barn_scenario
+
+    repo = Path(__file__).resolve().parents[2]
+    world = write_barn_scenario(3, tmp_path / "barn_0003.xml")
+    env = {"PYTHONPATH": str(repo), "PATH": "/usr/bin:/bin"}
+    out = tmp_path / "worlds.csv"
+    res = subprocess.run([sys.executable, str(repo / "scripts" / "barn_eval.py"), "worlds", str(world), "--out", str(out),
+                          "--configs", "0.05@0.05"], capture_output=True, text=True, env=env)
+    assert res.returncode == 0, res.stderr
+    row = next(csv.DictReader(open(out)))
+    assert float(row["L_m"]) >= 10.0 - 1e-9  # never shorter than the straight line
+    assert float(row["t_opt_s"]) == pytest.approx(float(row["L_m"]) / 2.0)
+    bench = tmp_path / "bench"
+    bench.mkdir()
+    t_opt = float(row["t_opt_s"])
+    with open(bench / "results.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=["scenario", "controller", "seed", "success", "reason", "sim_time_s", "collisions"])
+        w.writeheader()
+        w.writerow(dict(scenario="barn_0003", controller="sa-mpc", seed=0, success=True, reason="goal",
+                        sim_time_s=4 * t_opt, collisions=0))
+        w.writerow(dict(scenario="barn_0003", controller="sa-mpc", seed=1, success=False, reason="no_path",
+                        sim_time_s="", collisions=0))
+    res = subprocess.run([sys.executable, str(repo / "scripts" / "barn_eval.py"), "score", str(bench), "--worlds", str(out)],
+                         capture_output=True, text=True, env=env)
+    assert res.returncode == 0, res.stderr
+    scores = [float(r["barn_score"]) for r in csv.DictReader(open(bench / "barn_scores.csv"))]
+    assert scores == pytest.approx([0.25, 0.0])
