@@ -7,6 +7,11 @@
         without the margin, at 0.025 m, both, and at 0.0125 m).
     python scripts/barn_eval.py score runs/bench_dir --worlds runs/barn40_worlds.csv
         BARN score per run of a ``sanav-mj bench`` output folder (results.csv) and the mean.
+    python scripts/barn_eval.py closed-loop runs/barn40/*.xml --worlds runs/barn40_worlds.csv \
+            --margin 0.05 --resolution 0.05 [--mismatch KEY=VALUE ...] --out runs/cl.json
+        SA-MPC seed 0 on each world with the map inflated by circumscribed radius + MARGIN at
+        RESOLUTION; per run also the largest distance of the true position outside every safe
+        area (the tracking excursion the margin has to absorb).
 
 One process; prints a markdown summary, writes CSV.
 """
@@ -110,6 +115,53 @@ def cmd_score(args) -> int:
     return 0
 
 
+def _excursion(xy: np.ndarray, rects: np.ndarray) -> float:
+    """Largest distance [m] of the points (K, 2) outside the union of rects (R, 4); 0 if all inside."""
+    dx = np.maximum(np.maximum(rects[None, :, 0] - xy[:, None, 0], xy[:, None, 0] - rects[None, :, 2]), 0.0)
+    dy = np.maximum(np.maximum(rects[None, :, 1] - xy[:, None, 1], xy[:, None, 1] - rects[None, :, 3]), 0.0)
+    return float(np.hypot(dx, dy).min(axis=1).max()) if len(xy) else 0.0
+
+
+def cmd_closed_loop(args) -> int:
+    import json
+    from collections import Counter
+
+    import sanav_mj.eval.episode as episode
+    from sanav_mj.sim.mismatch import Mismatch
+
+    # Measurement knob: the run path has no margin argument, so the module default is set
+    # for this process only (prepare() reads it when it builds the map).
+    episode.DEFAULT_MARGIN_M = args.margin
+    mm = {}
+    for item in args.mismatch:
+        key, value = item.split("=", 1)
+        mm[key] = int(value) if key == "delay" else float(value)
+    mismatch = Mismatch(**mm)
+    t_opt = {r["scenario"]: float(r["t_opt_s"]) for r in csv.DictReader(open(args.worlds))}
+    rows = []
+    for path in args.scenarios:
+        d = episode.run_scenario(path, seed=0, resolution=args.resolution, mismatch=mismatch).document
+        exc = 0.0
+        if d["trace"]["x"]:
+            rects = np.asarray(episode.prepare(path, resolution=args.resolution).areas.rects)
+            exc = _excursion(np.column_stack([d["trace"]["x"], d["trace"]["y"]]), rects)
+        rows.append({"scenario": d["scenario"], "success": d["success"], "reason": d["reason"],
+                     "sim_time_s": d["sim_time_s"], "collisions": d["collisions"],
+                     "min_clearance_m": d["min_clearance_m"], "excursion_m": exc,
+                     "barn_score": barn_score(d["success"], d["sim_time_s"], t_opt[d["scenario"]])})
+        print(f"{d['scenario']}: {d['reason']} {d['sim_time_s']:.1f} s, excursion {exc:.4f} m", flush=True)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(rows, indent=1))
+    ok = [r for r in rows if r["success"]]
+    clr = [r["min_clearance_m"] for r in rows if r["min_clearance_m"] is not None]
+    print(f"margin {args.margin} m, cells {args.resolution} m, mismatch {mm}: success {len(ok)}/{len(rows)}, "
+          f"runs with collision {sum(r['collisions'] > 0 for r in rows)}, {dict(Counter(r['reason'] for r in rows))}, "
+          f"mean time (successful) {np.mean([r['sim_time_s'] for r in ok]) if ok else float('nan'):.2f} s, "
+          f"mean BARN score {np.mean([r['barn_score'] for r in rows]):.3f}, "
+          f"min clearance {min(clr) if clr else float('nan'):.3f} m, max excursion {max(r['excursion_m'] for r in rows):.4f} m")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="cmd", required=True)
@@ -121,9 +173,16 @@ def main(argv: list[str] | None = None) -> int:
     s = sub.add_parser("score")
     s.add_argument("bench", type=Path)
     s.add_argument("--worlds", type=Path, required=True)
+    c = sub.add_parser("closed-loop")
+    c.add_argument("scenarios", nargs="+", type=Path)
+    c.add_argument("--worlds", type=Path, required=True)
+    c.add_argument("--margin", type=float, default=MARGIN)
+    c.add_argument("--resolution", type=float, default=0.05)
+    c.add_argument("--mismatch", nargs="*", default=[])
+    c.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     try:
-        return cmd_worlds(args) if args.cmd == "worlds" else cmd_score(args)
+        return {"worlds": cmd_worlds, "score": cmd_score, "closed-loop": cmd_closed_loop}[args.cmd](args)
     except (OSError, ValueError, KeyError) as err:  # ScenarioError is a ValueError
         print(f"barn_eval: {err}", file=sys.stderr)
         return 2
