@@ -145,3 +145,18 @@ def test_script_writes_barn_worlds(tmp_path):
     s = load_scenario(out / "barn_0007.xml")
     layout = generate_barn_layout(7)
     np.testing.assert_allclose([o.center for o in s.obstacles], [o.center for o in layout.obstacles])
+
+
+def test_yaw_wraps_between_the_last_and_the_first_bin():
+    """Free set (K=4, 1 x 5 cells): bin 0 holds cells 0-2, bin 3 holds cells 2-4, nothing
+    else is free; start in cell 0 and goal in cell 4 connect only through yaw pi == 0."""
+    from sanav_mj.generate import footprint_connected
+
+    free = np.zeros((4, 1, 5), dtype=bool)
+    free[0, 0, :3] = True
+    free[3, 0, 2:] = True
+    bounds = (0.0, 0.0, 5.0, 1.0)
+    assert footprint_connected(free, bounds, 1.0, (0.5, 0.5), (4.5, 0.5))
+    free[3, 0, 2] = False  # no cell free in both bins: no way through
+    assert not footprint_connected(free, bounds, 1.0, (0.5, 0.5), (4.5, 0.5))
+    assert not footprint_connected(free, bounds, 1.0, (0.5, 0.5), (9.5, 0.5))  # goal outside the grid
