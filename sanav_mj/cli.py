@@ -341,7 +341,7 @@ def _cmd_areas(args) -> int:
 
 
 def _cmd_run(args) -> int:
-    from sanav_mj.eval.episode import run_scenario
+    from sanav_mj.api import run_scenario  # the CLI is a thin layer over the Python API
     from sanav_mj.sim.mismatch import parse_mismatch
 
     mismatch = parse_mismatch(args.mismatch)
@@ -357,7 +357,7 @@ def _cmd_run(args) -> int:
         mismatch=mismatch,
         time_limit_s=args.time_limit,
     )
-    doc = out.document
+    doc = out.to_dict()  # exactly what ``run_scenario(...).to_dict()`` gives
 
     def plot() -> None:
         from sanav_mj.eval.plots import plot_run
