@@ -21,7 +21,6 @@ the ``error`` column; each grid point counts those in ``errors`` and leaves them
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import time
@@ -42,7 +41,7 @@ from sanav_mj.eval.bench import (
     run_metadata,
 )
 from sanav_mj.eval.campaign import JOURNAL_NAME, Job, JobSet, is_error, run_jobs
-from sanav_mj.outputs import OutputFailures, atomic_path, write_text
+from sanav_mj.outputs import OutputFailures, write_text
 from sanav_mj.sim.mismatch import Mismatch, MismatchError, mismatch_keys
 
 
@@ -198,10 +197,10 @@ def _write_summary(cells: list[tuple[dict[str, Any], tuple[int, int]]], path: Pa
     """Summary CSV; a quantity with no value (NaN: no run of the point ran, or none has a
     clearance) is an empty field."""
     rows = [{k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()} for row, _ in cells]
-    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    out = CsvStream(path, list(rows[0]))
+    for row in rows:
+        out.add(row)
+    out.commit()
 
 
 def _heat_maps(cells: list[tuple[dict[str, Any], tuple[int, int]]], label: str, folder: Path, prefix: str, *,
