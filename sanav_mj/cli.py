@@ -1,4 +1,5 @@
-"""The ``sanav-mj`` command line (see the design contract for the commands and JSON).
+"""The ``sanav-mj`` command line (``sanav-mj COMMAND --help``; the JSON and campaign files
+it writes are described field by field in docs/outputs.md).
 
 Exit codes: 0 success; 1 a run ended without reaching the goal; 2 bad input (one line on
 stderr naming the file or argument and what is wrong, no traceback), which includes an output
