@@ -183,16 +183,6 @@ class SweepSummary:
         return out
 
 
-def _aggregate(rows: list[dict[str, Any]], xk: str, xv: list, yk: str, yv: list, scenario: str | None,
-               names: dict[str, str]) -> list[tuple[dict[str, Any], tuple[int, int]]]:
-    """Summary rows of the grid points (``scenario`` None: pooled over all scenarios), each
-    with its cell, from rows that carry their ``_cell`` (:class:`SweepSummary` over a list)."""
-    acc = SweepSummary(names)
-    for r in rows:
-        acc.add(r, tuple(r["_cell"]))
-    return acc.cells(xk, xv, yk, yv, scenario)
-
-
 def _write_summary(cells: list[tuple[dict[str, Any], tuple[int, int]]], path: Path) -> None:
     """Summary CSV; a quantity with no value (NaN: no run of the point ran, or none has a
     clearance) is an empty field."""
@@ -307,7 +297,7 @@ def run_robustness(
               and all(len({_fmt(k, v) for v in vals}) == len(vals) for k, vals in sweep))
     jobs = JobSet(make_jobs, n_jobs, distinct=unique)
     # the CSV's columns: the swept keys, the run columns, then the extra key of the rows
-    # (``mismatch``, as write_csv appends the keys it does not know, sorted)
+    # (``mismatch``; :func:`sanav_mj.eval.bench.write_csv` would append it as the one key it does not know)
     columns = (xk,) + ((yk,) if yk else ()) + CSV_COLUMNS + (("mismatch",) if n_jobs else ())
     with campaign_executor(ray) as executor:
         meta = {"command": "robustness", **run_metadata(scenarios, [controller], seeds, workers, time_limit_s)}
