@@ -28,7 +28,7 @@ import numpy as np
 
 from sanav_mj.control.factory import CONTROLLER_NAMES
 from sanav_mj.eval.episode import DEFAULT_MARGIN_M, Prepared, planner_config
-from sanav_mj.eval.episode import run_scenario as _run_scenario
+from sanav_mj.eval import episode as _episode
 from sanav_mj.mapping.safe_areas import MERGE_METHODS, SafeAreaMap
 from sanav_mj.planning import Plan, PlannerConfig
 from sanav_mj.scene import Scenario
@@ -184,6 +184,11 @@ class RunResult:
     start: np.ndarray
 
     @property
+    def controller(self) -> str:
+        """The controller's name (``"sa-mpc"``, ``"mpc"``, ``"dwa"``, ``"dqn"``)."""
+        return str(self.document["controller"])
+
+    @property
     def success(self) -> bool:
         """The goal was reached with no robot-obstacle contact before it."""
         return bool(self.document["success"])
@@ -237,7 +242,7 @@ def run_scenario(
         math.isfinite(time_limit_s) and time_limit_s > 0
     ):
         raise ValueError(f"time_limit_s: expected a finite number > 0 [s], got {time_limit_s!r}")
-    out = _run_scenario(
+    out = _episode.run_scenario(  # looked up at call time (tests replace it)
         _scenario(scenario),
         controller=controller,
         seed=int(seed),

@@ -537,3 +537,23 @@ def test_demo_output_that_fails_is_one_line_after_the_table(tmp_path, capsys, mo
     code, out, err = _run(["demo", "--out", str(tmp_path)], capsys)
     assert code == 2 and "| u_shape | goal |" in out
     assert err == f"sanav-mj: error: {tmp_path / 'u_shape.rrd'}: cannot write (No space left on device)\n"
+
+
+def test_run_is_a_thin_layer_over_the_python_api(tmp_path, capsys, monkeypatch):
+    """``run`` calls :func:`sanav_mj.api.run_scenario` and writes its ``to_dict()``: the two cannot diverge."""
+    import sanav_mj.api as api
+
+    results, real = [], api.run_scenario
+
+    def spy(*a, **k):
+        results.append(real(*a, **k))
+        return results[-1]
+
+    monkeypatch.setattr(api, "run_scenario", spy)
+    js = tmp_path / "r.json"
+    code, out, _ = _run(["run", "single_rect", "--controller", "dwa", "--seed", "2", "--time-limit", "0.5",
+                         "--mismatch", "delay=1", "--json", str(js)], capsys)
+    assert len(results) == 1 and code == (0 if results[0].success else 1)
+    assert json.loads(js.read_text()) == results[0].to_dict()  # wall-clock fields included: the same object
+    assert results[0].to_dict()["mismatch"] == {"delay": 1} and results[0].controller == "dwa"
+    assert out.startswith("single_rect / dwa seed 2:")

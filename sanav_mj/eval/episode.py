@@ -136,7 +136,7 @@ def prepare(
 
 
 def areas_document(prep: Prepared) -> dict[str, Any]:
-    """The ``areas --json`` document of the design contract."""
+    """The ``areas --json`` document (keys, types and units: docs/outputs.md)."""
     from sanav_mj.planning import plan_document
 
     plan = plan_document(prep.plan)

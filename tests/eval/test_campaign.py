@@ -420,3 +420,59 @@ def test_workers_exit_when_the_parent_is_killed_with_sigkill(tmp_path):
     finally:
         parent.kill()
         parent.wait()
+
+
+# --------------------------------------------------------------------------- streaming rows (on_row)
+
+
+class _StragglerExecutor(campaign.Executor):
+    """Finishes every job at once, in reverse order of submission, except job 0 (seed 0),
+    which finishes only when it is the last job in flight: rows arrive out of order."""
+
+    slots = 4
+
+    def __init__(self) -> None:
+        self.jobs: dict[int, Job] = {}
+        self.submitted = 0
+        self.submitted_before_first_done: int | None = None
+
+    def submit(self, job):
+        self.submitted += 1
+        self.jobs[self.submitted] = job
+        return self.submitted
+
+    def wait(self, handles):
+        ready = [h for h in handles if self.jobs[h].seed != 0] or handles
+        if any(self.jobs[h].seed == 0 for h in ready):
+            self.submitted_before_first_done = self.submitted
+        return [(h, _metrics(self.jobs.pop(h))) for h in sorted(ready, reverse=True)]
+
+
+def test_on_row_gets_the_rows_in_job_order_and_none_are_kept(tmp_path):
+    jobs = campaign.JobSet(lambda: (Job("single_rect", "dwa", k) for k in range(500)), 500, distinct=True)
+    got = []
+    ex = _StragglerExecutor()
+    kept = run_jobs(jobs, executor=ex, journal=tmp_path / "runs.jsonl", on_row=got.append)
+    assert kept == []
+    assert [r["seed"] for r in got] == list(range(500))
+    assert len(read_journal(tmp_path / "runs.jsonl")) == 500
+    # rows finished ahead of the straggler are held at most REORDER_WINDOW x slots: no job
+    # further ahead is started (without the window all 500 would run before it finishes)
+    assert ex.submitted_before_first_done == campaign.REORDER_WINDOW * ex.slots
+
+
+def test_on_row_rows_equal_the_returned_rows_also_on_resume(tmp_path):
+    jobs = _jobs(8)
+    whole = run_jobs(jobs, workers=1, runner=fake_run)
+    journal = tmp_path / "runs.jsonl"
+    run_jobs(jobs[:5], workers=1, runner=fake_run, journal=journal)
+    streamed = []
+    assert run_jobs(jobs, workers=1, runner=fake_run, journal=journal, resume=True, on_row=streamed.append) == []
+    strip = [{k: v for k, v in r.items() if k != "pid"} for r in whole]
+    assert [{k: v for k, v in r.items() if k != "pid"} for r in streamed] == strip
+
+
+def test_a_distinct_jobset_keeps_no_keys_but_a_plain_one_refuses_duplicates(tmp_path):
+    twice = [Job("single_rect", "dwa", 0), Job("single_rect", "dwa", 0)]
+    with pytest.raises(JournalError, match="two jobs"):
+        run_jobs(campaign.JobSet(lambda: iter(twice), 2), workers=1, runner=fake_run, journal=tmp_path / "a.jsonl")

@@ -450,3 +450,53 @@ def test_runs_without_a_clearance_give_an_empty_field_not_inf(tmp_path, monkeypa
     assert "inf" not in (out / "summary.csv").read_text()
     assert {r["min_clearance_m"] for r in _read(out / "robustness.csv")} == {""}
     _assert_pngs(out)
+
+
+@pytest.mark.parametrize("name", ["robustness.csv", "summary.csv", "summary_by_scenario.csv"])
+def test_an_output_cut_by_a_full_disk_is_named_and_the_others_are_written(tmp_path, monkeypatch, name):
+    from sanav_mj.eval import campaign
+    from tests.eval.test_bench import _fill_disk
+
+    monkeypatch.setattr(campaign, "run_job", _fake_doc)
+    _fill_disk(monkeypatch, name, keep=150)
+    out = tmp_path / "rb"
+    with pytest.raises(OSError) as info:
+        run_robustness(**_sweep_args(out, scenarios=["single_rect", "u_shape"]))
+    assert info.value.filename == str(out / name) and "No space left on device" in str(info.value)
+    expected = {"meta.json", "runs.jsonl", "robustness.csv", "summary.csv", "summary_by_scenario.csv", *PNGS,
+                "per_scenario"} - {name}
+    assert sorted(p.name for p in out.iterdir()) == sorted(expected)  # no cut file, no temporary file
+    assert len(list((out / "per_scenario").iterdir())) == 2 * len(PNGS)
+    assert json.loads((out / "meta.json").read_text())["wall_time_s"] > 0
+
+
+def test_the_streamed_sweep_summary_equals_a_grouping_of_all_rows():
+    """:class:`SweepSummary` (fed row by row) against a plain grouping of every row."""
+    from sanav_mj.eval.robustness import SweepSummary
+
+    rng = np.random.default_rng(3)
+    names = {"a": "a", "b": "b"}
+    rows = []
+    for i in range(600):
+        cell = (int(rng.integers(2)), int(rng.integers(3)))
+        r = {"scenario": str(rng.choice(["a", "b"])), "success": bool(rng.random() < 0.5),
+             "reason": str(rng.choice(["goal", "stuck"])), "collisions": int(rng.integers(0, 2)),
+             "min_clearance_m": None if i % 7 == 0 else float(rng.uniform(-0.1, 1.0)), "_cell": cell}
+        if i % 19 == 0:
+            r = {"scenario": r["scenario"], "success": False, "reason": "error", "_cell": cell}
+        rows.append(r)
+    acc = SweepSummary(names)
+    for r in rows:
+        acc.add(r, r["_cell"])
+    for scenario in (None, "a", "b"):
+        got = acc.cells("mass", [1.0, 2.0, 3.0], "delay", [0, 1], scenario)
+        for row, (yi, xi) in got:
+            cell = [r for r in rows if r["_cell"] == (yi, xi) and scenario in (None, r["scenario"])]
+            ran = [r for r in cell if r["reason"] != "error"]
+            clear = [r["min_clearance_m"] for r in ran if r.get("min_clearance_m") is not None]
+            assert (row["runs"], row["errors"]) == (len(ran), len(cell) - len(ran))
+            assert row["success_rate"] == 100.0 * sum(r["success"] for r in ran) / len(ran)
+            assert row["collision_rate"] == 100.0 * sum(r["collisions"] > 0 for r in ran) / len(ran)
+            assert row["min_clearance_m"] == min(clear)
+            counts = {k: sum(r["reason"] == k for r in ran) for k in ("goal", "stuck")}
+            assert row["reasons"] == ", ".join(f"{k} {v}" for k, v in counts.items() if v)
