@@ -408,43 +408,8 @@ def test_a_run_that_fails_or_is_interrupted_leaves_no_output_file(tmp_path, caps
     assert not out.exists()  # no empty file, not even the folder
 
 
-def _fill_disk_after(monkeypatch, suffix: str, keep: int):
-    """Writes of a temporary output whose final name ends in ``suffix`` stop after ``keep`` bytes with ENOSPC."""
-    import builtins
-    import errno
-
-    from sanav_mj import outputs
-
-    class Full:
-        def __init__(self, fh):
-            self.fh, self.left = fh, keep
-
-        def write(self, data):
-            if len(data) > self.left:
-                self.fh.write(data[:self.left])
-                self.left = 0
-                raise OSError(errno.ENOSPC, "No space left on device")
-            self.left -= len(data)
-            return self.fh.write(data)
-
-        def __getattr__(self, name):
-            return getattr(self.fh, name)
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            self.fh.close()
-
-    def fake_open(path, mode="r", *a, **k):
-        fh = builtins.open(path, mode, *a, **k)
-        return Full(fh) if "w" in mode and str(path).endswith(".part") and f"{suffix}." in Path(path).name else fh
-
-    monkeypatch.setattr(outputs, "open", fake_open, raising=False)
-
-
-def test_a_recording_cut_short_by_a_full_disk_is_exit_2_and_the_rest_is_kept(tmp_path, capsys, monkeypatch):
-    _fill_disk_after(monkeypatch, ".rrd", keep=4096)
+def test_a_recording_cut_short_by_a_full_disk_is_exit_2_and_the_rest_is_kept(tmp_path, capsys, fill_disk):
+    fill_disk(keep=4096, ending=".rrd")
     rrd, js, png = tmp_path / "r.rrd", tmp_path / "r.json", tmp_path / "r.png"
     code, out, err = _run(["run", "single_rect", "--controller", "dwa", "--time-limit", "0.5", "--rrd", str(rrd),
                            "--json", str(js), "--plot", str(png)], capsys)

@@ -453,12 +453,11 @@ def test_runs_without_a_clearance_give_an_empty_field_not_inf(tmp_path, monkeypa
 
 
 @pytest.mark.parametrize("name", ["robustness.csv", "summary.csv", "summary_by_scenario.csv"])
-def test_an_output_cut_by_a_full_disk_is_named_and_the_others_are_written(tmp_path, monkeypatch, name):
+def test_an_output_cut_by_a_full_disk_is_named_and_the_others_are_written(tmp_path, monkeypatch, fill_disk, name):
     from sanav_mj.eval import campaign
-    from tests.eval.test_bench import _fill_disk
 
     monkeypatch.setattr(campaign, "run_job", _fake_doc)
-    _fill_disk(monkeypatch, name, keep=150)
+    fill_disk(keep=150, ending=name)
     out = tmp_path / "rb"
     with pytest.raises(OSError) as info:
         run_robustness(**_sweep_args(out, scenarios=["single_rect", "u_shape"]))
