@@ -88,3 +88,23 @@ def fill_disk(monkeypatch):
         monkeypatch.setattr(outputs, "open", fake_open, raising=False)
 
     return fill
+
+
+@pytest.fixture
+def fake_campaign_runs(monkeypatch):
+    """Factory ``fake_campaign_runs(doc_of) -> list``: from then on the runs of a robustness
+    campaign are ``doc_of(job)`` (no simulation, no journal, no worker); the list
+    gets every job, in order."""
+    from sanav_mj.eval import robustness
+
+    def install(doc_of) -> list:
+        seen = []
+
+        def fake_run_jobs(jobs, workers, desc, **kw):
+            seen.extend(jobs)
+            return [doc_of(j) for j in jobs]
+
+        monkeypatch.setattr(robustness, "run_jobs", fake_run_jobs)
+        return seen
+
+    return install

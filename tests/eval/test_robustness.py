@@ -109,14 +109,8 @@ def _fake_doc(job):
     }
 
 
-def test_two_key_aggregation_known_answers(tmp_path, monkeypatch):
-    seen = []
-
-    def fake_run_jobs(jobs, workers, desc, **kw):
-        seen.extend(jobs)
-        return [_fake_doc(j) for j in jobs]
-
-    monkeypatch.setattr(robustness, "run_jobs", fake_run_jobs)
+def test_two_key_aggregation_known_answers(tmp_path, fake_campaign_runs):
+    seen = fake_campaign_runs(_fake_doc)
     out = tmp_path / "rb"
     summary = run_robustness(["single_rect"], parse_sweep(["mass=1,2", "delay=0,1"]), seeds=3,
                              controller="sa-mpc", workers=1, out=out,
@@ -391,8 +385,8 @@ def _capture_heat_maps(monkeypatch):
     return maps
 
 
-def test_integer_keys_are_written_as_integers(tmp_path, monkeypatch):
-    monkeypatch.setattr(robustness, "run_jobs", lambda jobs, workers, desc, **kw: [_fake_doc(j) for j in jobs])
+def test_integer_keys_are_written_as_integers(tmp_path, monkeypatch, fake_campaign_runs):
+    fake_campaign_runs(_fake_doc)
     maps = _capture_heat_maps(monkeypatch)
     out = tmp_path / "rb"
     run_robustness(**_sweep_args(out))
@@ -404,14 +398,14 @@ def test_integer_keys_are_written_as_integers(tmp_path, monkeypatch):
     assert title.startswith("single_rect / sa-mpc: success rate [%]")
 
 
-def test_summary_and_heat_maps_per_scenario_and_pooled(tmp_path, monkeypatch):
+def test_summary_and_heat_maps_per_scenario_and_pooled(tmp_path, monkeypatch, fake_campaign_runs):
     def doc(job):
         d = _fake_doc(job)
         if job.scenario == "u_shape":  # every u_shape run fails: the pooled rate is the mean of the two
             d.update(success=False, reason="stuck")
         return d
 
-    monkeypatch.setattr(robustness, "run_jobs", lambda jobs, workers, desc, **kw: [doc(j) for j in jobs])
+    fake_campaign_runs(doc)
     maps = _capture_heat_maps(monkeypatch)
     out = tmp_path / "rb"
     summary = run_robustness(**_sweep_args(out, scenarios=["single_rect", "u_shape"]))
@@ -434,14 +428,14 @@ def test_summary_and_heat_maps_per_scenario_and_pooled(tmp_path, monkeypatch):
         assert (out / "per_scenario" / f"{name}_min_clearance.png").read_bytes()[:4] == b"\x89PNG"
 
 
-def test_runs_without_a_clearance_give_an_empty_field_not_inf(tmp_path, monkeypatch):
+def test_runs_without_a_clearance_give_an_empty_field_not_inf(tmp_path, fake_campaign_runs):
     """A goal with no path: the run never moved and has no clearance (None); the point has none either."""
     def doc(job):
         d = _fake_doc(job)
         d.update(success=False, reason="no_path", steps=0, min_clearance_m=None)
         return d
 
-    monkeypatch.setattr(robustness, "run_jobs", lambda jobs, workers, desc, **kw: [doc(j) for j in jobs])
+    fake_campaign_runs(doc)
     out = tmp_path / "rb"
     summary = run_robustness(**_sweep_args(out))
     assert all(math.isnan(r["min_clearance_m"]) and r["success_rate"] == 0.0 for r in summary)
