@@ -92,10 +92,10 @@ def fill_disk(monkeypatch):
 
 @pytest.fixture
 def fake_campaign_runs(monkeypatch):
-    """Factory ``fake_campaign_runs(doc_of) -> list``: from then on the runs of a robustness
-    campaign are ``doc_of(job)`` (no simulation, no journal, no worker); the list
+    """Factory ``fake_campaign_runs(doc_of) -> list``: from then on the runs of a bench or
+    robustness campaign (:func:`sanav_mj.eval.bench.stream_campaign`) are ``doc_of(job)`` (no simulation, no journal, no worker); the list
     gets every job, in order."""
-    from sanav_mj.eval import robustness
+    from sanav_mj.eval import bench
 
     def install(doc_of) -> list:
         seen = []
@@ -104,7 +104,7 @@ def fake_campaign_runs(monkeypatch):
             seen.extend(jobs)
             return [doc_of(j) for j in jobs]
 
-        monkeypatch.setattr(robustness, "run_jobs", fake_run_jobs)
+        monkeypatch.setattr(bench, "run_jobs", fake_run_jobs)
         return seen
 
     return install

@@ -39,8 +39,9 @@ from sanav_mj.eval.bench import (
     describe,
     flatten,
     run_metadata,
+    stream_campaign,
 )
-from sanav_mj.eval.campaign import JOURNAL_NAME, Job, JobSet, is_error, run_jobs
+from sanav_mj.eval.campaign import Job, JobSet, is_error
 from sanav_mj.outputs import OutputFailures, write_text
 from sanav_mj.sim.mismatch import Mismatch, MismatchError, mismatch_keys
 
@@ -320,13 +321,7 @@ def run_robustness(
             per_run.add(r)
             acc.add(r, tuple(d["_cell"]))
 
-        try:
-            for d in run_jobs(jobs, workers, desc="robustness", journal=out / JOURNAL_NAME, resume=resume,
-                              executor=executor, on_row=take):
-                take(d)  # none: run_jobs hands every row to take
-        except BaseException:
-            per_run.discard()
-            raise
+        stream_campaign(jobs, workers, "robustness", out, resume, executor, per_run, take)
     meta["wall_time_s"] = time.perf_counter() - t0
     meta["load_average_end"] = _load_average()
     failures = OutputFailures()  # every output whole or not at all; one failing does not stop the others
