@@ -493,3 +493,43 @@ def test_the_streamed_sweep_summary_equals_a_grouping_of_all_rows():
             assert row["min_clearance_m"] == min(clear)
             counts = {k: sum(r["reason"] == k for r in ran) for k in ("goal", "stuck")}
             assert row["reasons"] == ", ".join(f"{k} {v}" for k, v in counts.items() if v)
+
+
+def test_the_campaign_scripts_report_aggregates_as_summary_csv(tmp_path, monkeypatch, fake_campaign_runs):
+    """scripts/robustness_campaign.py reads robustness.csv back through :class:`CellSummary`:
+    over one grid point its numbers are summary.csv's, a run that raised left out (it used to
+    stop the report on the error row's empty ``collisions``)."""
+    import importlib.util
+    import sys
+
+    from sanav_mj.eval.campaign import error_row
+
+    spec = importlib.util.spec_from_file_location(
+        "robustness_campaign", Path(__file__).resolve().parents[2] / "scripts" / "robustness_campaign.py")
+    script = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, script)  # its dataclasses look their module up
+    spec.loader.exec_module(script)
+
+    def doc(job):
+        if job.seed == 0:
+            return error_row(job, RuntimeError("boom"))
+        d = _fake_doc(job)
+        if job.seed == 1:
+            d.update(success=False, reason="collision", collisions=2, min_clearance_m=-0.02)
+        if job.seed == 2:
+            d.update(success=False, reason="no_path", steps=0, min_clearance_m=None)
+        return d
+
+    fake_campaign_runs(doc)
+    out = tmp_path / "rb"
+    (cell,) = run_robustness(["single_rect"], parse_sweep(["mass=1", "delay=0"]), seeds=4, controller="sa-mpc", workers=1,
+                             out=out)
+    rows = _read(out / "robustness.csv")
+    assert len(rows) == 4 and rows[0]["collisions"] == ""  # the error row, with no metrics
+    n, succ, coll, clear = script._aggregate(rows)
+    assert (n, succ, coll, clear) == (cell["runs"], cell["success_rate"], cell["collision_rate"],
+                                      cell["min_clearance_m"])
+    assert (n, succ, coll, clear) == (3, 100.0 / 3, 100.0 / 3, -0.02)
+    assert script._aggregate([]) == (0, 0.0, 0.0, script._aggregate([])[3]) and math.isnan(script._aggregate([])[3])
+    acc = script._cell(rows)
+    assert (acc.all, acc.success, acc.reasons) == (4, 1, {"collision": 1, "no_path": 1, "goal": 1})
