@@ -32,3 +32,25 @@ def ctrl_c_after(monkeypatch):
         return finished
 
     return install
+
+
+@pytest.fixture
+def endless_jobs():
+    """Factory ``endless_jobs(total, time_limit_s) -> (jobs, taken)``: a lazy campaign of
+    ``total`` jobs (far too many to list; single_rect / dwa, seeds 0, 1, ...) generated on
+    demand; ``taken`` gets each seed as its job is taken."""
+    from sanav_mj.eval.campaign import Job, JobSet
+
+    def make_set(total: int, time_limit_s: float):
+        taken: list[int] = []
+
+        def make():
+            k = 0
+            while True:
+                taken.append(k)
+                yield Job("single_rect", "dwa", k, (), time_limit_s)
+                k += 1
+
+        return JobSet(make, total), taken
+
+    return make_set

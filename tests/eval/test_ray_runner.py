@@ -11,7 +11,6 @@ import sys
 
 import pytest
 
-from sanav_mj.eval import campaign
 from sanav_mj.eval.bench import run_bench
 from sanav_mj.eval.campaign import CampaignInterrupted, ClusterError, Job, read_journal, run_jobs
 from sanav_mj.eval.ray_runner import RayExecutor, ray_session, scenario_bundle, unpack
@@ -186,20 +185,12 @@ def test_the_ray_option_takes_an_address_not_a_scenario(capsys):
     assert err.count("\n") == 1 and "expected auto, HOST:PORT or ray://HOST:PORT, got 'u_shape'" in err
 
 
-def test_ray_takes_jobs_lazily_with_two_per_cpu_in_flight(tmp_path, session, ctrl_c_after):
-    taken = []
-
-    def make():
-        k = 0
-        while True:
-            taken.append(k)
-            yield Job("single_rect", "dwa", k, (), 3.0)
-            k += 1
-
+def test_ray_takes_jobs_lazily_with_two_per_cpu_in_flight(tmp_path, session, ctrl_c_after, endless_jobs):
+    jobs, taken = endless_jobs(10**9, 3.0)
     ctrl_c_after(3, total=10**9)  # Ctrl-C when the third row has been journalled
     executor = RayExecutor(session)
     assert executor.slots == 4  # 2 x the 2 CPUs
     with pytest.raises(CampaignInterrupted) as info:
-        run_jobs(campaign.JobSet(make, 10**9), journal=tmp_path / "runs.jsonl", executor=executor)
+        run_jobs(jobs, journal=tmp_path / "runs.jsonl", executor=executor)
     assert info.value.saved == 3 and len(read_journal(tmp_path / "runs.jsonl")) == 3
     assert 3 + 1 <= len(taken) <= 3 + executor.slots  # the finished ones plus at most 4 in flight
