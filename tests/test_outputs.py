@@ -80,32 +80,6 @@ def test_the_file_mode_is_that_of_a_plain_write(tmp_path):
 # --------------------------------------------------------------------------- streamed files and several outputs
 
 
-def _full_after(monkeypatch, keep: int):
-    """Writes to a temporary ``.part`` file stop with ENOSPC after ``keep`` characters."""
-    import builtins
-
-    class Full:
-        def __init__(self, fh):
-            self.fh, self.left = fh, keep
-
-        def write(self, data):
-            if len(data) > self.left:
-                self.fh.write(data[:self.left])
-                self.left = 0
-                raise OSError(errno.ENOSPC, "No space left on device")
-            self.left -= len(data)
-            return self.fh.write(data)
-
-        def __getattr__(self, name):
-            return getattr(self.fh, name)
-
-    def fake_open(path, mode="r", *a, **k):
-        fh = builtins.open(path, mode, *a, **k)
-        return Full(fh) if "w" in mode and str(path).endswith(".part") else fh
-
-    monkeypatch.setattr(outputs, "open", fake_open, raising=False)
-
-
 def test_a_streamed_file_appears_whole_at_commit_only(tmp_path):
     path = tmp_path / "sub" / "rows.csv"
     f = outputs.StreamedFile(path)
@@ -116,8 +90,8 @@ def test_a_streamed_file_appears_whole_at_commit_only(tmp_path):
     assert sorted(p.name for p in path.parent.iterdir()) == ["rows.csv"]
 
 
-def test_a_streamed_file_cut_by_a_full_disk_leaves_nothing_and_commit_names_it(tmp_path, monkeypatch):
-    _full_after(monkeypatch, keep=10)
+def test_a_streamed_file_cut_by_a_full_disk_leaves_nothing_and_commit_names_it(tmp_path, fill_disk):
+    fill_disk(keep=10)
     path = tmp_path / "rows.csv"
     path.write_text("old complete file\n")
     f = outputs.StreamedFile(path)

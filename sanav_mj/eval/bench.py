@@ -32,7 +32,7 @@ import platform
 import subprocess
 import sys
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -423,6 +423,22 @@ def begin_campaign(out: Path, meta: dict[str, Any], resume: bool) -> None:
     write_text(path, json.dumps(meta, indent=1))
 
 
+def stream_campaign(jobs: JobSet, workers: int, desc: str, out: Path, resume: bool, executor: Any,
+                    per_run: CsvStream, take: Callable[[dict[str, Any]], None]) -> None:
+    """Run ``jobs`` (:func:`sanav_mj.eval.campaign.run_jobs` on ``workers`` processes or
+    ``executor``, journalled in ``out/runs.jsonl``, continued from it with ``resume``; ``desc``
+    labels the progress bar), handing each row to ``take`` in job order as it arrives; no row
+    is kept. ``take`` writes the row to ``per_run`` (and to running summaries); if the campaign
+    stops (an exception, Ctrl-C) ``per_run``'s temporary file is dropped and the exception goes on."""
+    try:
+        for doc in run_jobs(jobs, workers, desc=desc, journal=out / JOURNAL_NAME, resume=resume,
+                            executor=executor, on_row=take):
+            take(doc)  # none: run_jobs hands every row to take
+    except BaseException:
+        per_run.discard()
+        raise
+
+
 def run_bench(
     scenarios: list[str],
     controllers: list[str],
@@ -506,13 +522,7 @@ def run_bench(
             results.add(row)
             acc.add(row)
 
-        try:
-            for doc in run_jobs(jobs, workers, desc="bench", journal=out / JOURNAL_NAME, resume=resume,
-                                executor=executor, on_row=take):
-                take(doc)  # none: run_jobs hands every row to take
-        except BaseException:
-            results.discard()
-            raise
+        stream_campaign(jobs, workers, "bench", out, resume, executor, results, take)
     meta["wall_time_s"] = time.perf_counter() - t0
     meta["load_average_end"] = _load_average()
     failures = OutputFailures()  # every output whole or not at all; one failing does not stop the others

@@ -39,8 +39,9 @@ from sanav_mj.eval.bench import (
     describe,
     flatten,
     run_metadata,
+    stream_campaign,
 )
-from sanav_mj.eval.campaign import JOURNAL_NAME, Job, JobSet, is_error, run_jobs
+from sanav_mj.eval.campaign import Job, JobSet, is_error
 from sanav_mj.outputs import OutputFailures, write_text
 from sanav_mj.sim.mismatch import Mismatch, MismatchError, mismatch_keys
 
@@ -114,9 +115,12 @@ def _file_part(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in name) or "scenario"
 
 
-class _Cell:
-    """Running aggregates of one grid point (of one scenario, or pooled): counts, the
-    smallest clearance, the outcome counts. Exact: nothing is sampled or estimated."""
+class CellSummary:
+    """Running aggregates of some runs (one grid point of one scenario, or pooled), fed one
+    row at a time (:meth:`add`): ``all`` rows, ``ran`` (to an outcome: not an error row),
+    ``success`` and ``collided`` (runs with a collision) among those, the smallest
+    ``clearance`` [m] (None: no run has one) and the outcome counts ``reasons``
+    ({reason: runs}). Exact: nothing is sampled or estimated."""
 
     __slots__ = ("all", "ran", "success", "collided", "clearance", "reasons")
 
@@ -129,6 +133,8 @@ class _Cell:
         self.reasons: dict[str, int] = {}
 
     def add(self, r: dict[str, Any]) -> None:
+        """Take one run row: ``reason``, and unless it is an error row (:func:`is_error`)
+        ``success`` (bool), ``collisions`` (int) and ``min_clearance_m`` ([m] or None)."""
         self.all += 1
         if is_error(r):
             return
@@ -140,6 +146,21 @@ class _Cell:
             self.clearance = c
         self.reasons[r["reason"]] = self.reasons.get(r["reason"], 0) + 1
 
+    def summary(self) -> dict[str, Any]:
+        """``runs`` (that ran to an outcome), ``errors`` (rows of runs that raised),
+        ``success_rate`` and ``collision_rate`` [%] of the runs (NaN without one),
+        ``min_clearance_m`` [m] (NaN when no run has one, never inf) and ``reasons``
+        ("goal 3, stuck 1": the outcome counts by reason)."""
+        n = self.ran
+        return dict(
+            runs=n, errors=self.all - n,
+            success_rate=100.0 * self.success / n if n else math.nan,
+            collision_rate=100.0 * self.collided / n if n else math.nan,
+            # no run with a clearance (none ran, or none moved: no path): no value, not inf
+            min_clearance_m=float(self.clearance) if self.clearance is not None else math.nan,
+            reasons=", ".join(f"{k} {v}" for k, v in sorted(self.reasons.items())),
+        )
+
 
 class SweepSummary:
     """The summaries of a sweep fed one row at a time (:meth:`add`): per grid point, pooled
@@ -148,7 +169,7 @@ class SweepSummary:
 
     def __init__(self, names: dict[str, str]) -> None:
         self._names = names
-        self._cells: dict[tuple[str | None, tuple[int, int]], _Cell] = {}
+        self._cells: dict[tuple[str | None, tuple[int, int]], CellSummary] = {}
 
     def add(self, row: dict[str, Any], cell: tuple[int, int]) -> None:
         """Take one row (:func:`sanav_mj.eval.bench.flatten` of a run) of grid point ``cell`` = (yi, xi)."""
@@ -157,7 +178,7 @@ class SweepSummary:
         for group in (None, scenario):
             acc = self._cells.get((group, cell))
             if acc is None:
-                acc = self._cells[(group, cell)] = _Cell()
+                acc = self._cells[(group, cell)] = CellSummary()
             acc.add(row)
 
     def cells(self, xk: str, xv: list, yk: str, yv: list,
@@ -166,19 +187,11 @@ class SweepSummary:
         out = []
         for yi, y in enumerate(yv):
             for xi, x in enumerate(xv):
-                acc = self._cells.get((scenario, (yi, xi))) or _Cell()
-                n = acc.ran
+                acc = self._cells.get((scenario, (yi, xi))) or CellSummary()
                 row: dict[str, Any] = {"scenario": POOLED if scenario is None else scenario, xk: x}
                 if yk:
                     row[yk] = y
-                row.update(
-                    runs=n, errors=acc.all - n,
-                    success_rate=100.0 * acc.success / n if n else math.nan,
-                    collision_rate=100.0 * acc.collided / n if n else math.nan,
-                    # no run with a clearance (none ran, or none moved: no path): no value, not inf
-                    min_clearance_m=float(acc.clearance) if acc.clearance is not None else math.nan,
-                    reasons=", ".join(f"{k} {v}" for k, v in sorted(acc.reasons.items())),
-                )
+                row.update(acc.summary())
                 out.append((row, (yi, xi)))
         return out
 
@@ -320,13 +333,7 @@ def run_robustness(
             per_run.add(r)
             acc.add(r, tuple(d["_cell"]))
 
-        try:
-            for d in run_jobs(jobs, workers, desc="robustness", journal=out / JOURNAL_NAME, resume=resume,
-                              executor=executor, on_row=take):
-                take(d)  # none: run_jobs hands every row to take
-        except BaseException:
-            per_run.discard()
-            raise
+        stream_campaign(jobs, workers, "robustness", out, resume, executor, per_run, take)
     meta["wall_time_s"] = time.perf_counter() - t0
     meta["load_average_end"] = _load_average()
     failures = OutputFailures()  # every output whole or not at all; one failing does not stop the others

@@ -321,49 +321,13 @@ def test_the_streamed_summary_equals_the_all_rows_one_exactly():
     assert markdown_table(streamed) == markdown_table(reference)
 
 
-def _fill_disk(monkeypatch, name: str, keep: int):
-    """Writes of a temporary file of output ``name`` stop with ENOSPC after ``keep`` characters."""
-    import builtins
-    import errno
-    from pathlib import Path
-
-    from sanav_mj import outputs
-
-    class Full:
-        def __init__(self, fh):
-            self.fh, self.left = fh, keep
-
-        def write(self, data):
-            if len(data) > self.left:
-                self.fh.write(data[:self.left])
-                self.left = 0
-                raise OSError(errno.ENOSPC, "No space left on device")
-            self.left -= len(data)
-            return self.fh.write(data)
-
-        def __getattr__(self, attr):
-            return getattr(self.fh, attr)
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            self.fh.close()
-
-    def fake_open(path, mode="r", *a, **k):
-        fh = builtins.open(path, mode, *a, **k)
-        return Full(fh) if "w" in mode and Path(path).name.startswith(f".{name}.") else fh
-
-    monkeypatch.setattr(outputs, "open", fake_open, raising=False)
-
-
 def _left(folder):
     return sorted(p.name for p in folder.iterdir())
 
 
 @pytest.mark.parametrize("name", ["results.csv", "table.md"])
-def test_an_output_cut_by_a_full_disk_is_named_and_the_others_are_written(tmp_path, fake_runs, monkeypatch, name):
-    _fill_disk(monkeypatch, name, keep=300)
+def test_an_output_cut_by_a_full_disk_is_named_and_the_others_are_written(tmp_path, fake_runs, fill_disk, name):
+    fill_disk(keep=300, ending=name)
     with pytest.raises(OSError) as info:
         run_bench(["single_rect"], ["sa-mpc", "dwa"], 6, workers=1, out=tmp_path)
     assert info.value.filename == str(tmp_path / name) and "No space left on device" in str(info.value)
@@ -375,9 +339,9 @@ def test_an_output_cut_by_a_full_disk_is_named_and_the_others_are_written(tmp_pa
         assert len((tmp_path / "results.csv").read_text().splitlines()) == 1 + 12
 
 
-def test_meta_json_before_the_runs_is_written_whole_or_not_at_all(tmp_path, fake_runs, monkeypatch):
+def test_meta_json_before_the_runs_is_written_whole_or_not_at_all(tmp_path, fake_runs, fill_disk):
     finished, _ = fake_runs
-    _fill_disk(monkeypatch, "meta.json", keep=100)
+    fill_disk(keep=100, ending="meta.json")
     with pytest.raises(OSError) as info:
         run_bench(["single_rect"], ["sa-mpc"], 2, workers=1, out=tmp_path)
     assert info.value.filename == str(tmp_path / "meta.json")
@@ -394,10 +358,10 @@ def test_ctrl_c_mid_campaign_leaves_no_partial_output(tmp_path, fake_runs):
     assert _left(tmp_path) == ["meta.json", "runs.jsonl"]  # results.csv was being written: gone, no .part
 
 
-def test_a_full_disk_in_the_cli_is_exit_2_naming_the_file(tmp_path, fake_runs, monkeypatch, capsys):
+def test_a_full_disk_in_the_cli_is_exit_2_naming_the_file(tmp_path, fake_runs, fill_disk, capsys):
     from sanav_mj.cli import main
 
-    _fill_disk(monkeypatch, "results.csv", keep=200)
+    fill_disk(keep=200, ending="results.csv")
     code = main(["bench", "single_rect", "--controllers", "sa-mpc", "--runs", "3", "--workers", "1",
                  "--out", str(tmp_path)])
     err = capsys.readouterr().err

@@ -153,22 +153,9 @@ def test_a_last_line_cut_short_is_dropped_and_a_broken_middle_line_is_an_error(t
         read_journal(journal)
 
 
-def test_ctrl_c_with_workers_stops_the_pool_and_keeps_the_finished_rows(tmp_path, monkeypatch):
+def test_ctrl_c_with_workers_stops_the_pool_and_keeps_the_finished_rows(tmp_path, ctrl_c_after):
     """Ctrl-C arrives in the parent (here: from the progress bar after the second row)."""
-
-    class Bar:
-        def __init__(self, *a, **kw):
-            self.n = 0
-
-        def update(self, k=1):
-            self.n += k
-            if self.n == 2:
-                raise KeyboardInterrupt
-
-        def close(self):
-            pass
-
-    monkeypatch.setattr(campaign, "tqdm", Bar)
+    ctrl_c_after(2)
     journal = tmp_path / "runs.jsonl"
     jobs = [j for j in _jobs(12) if j.seed != 3]
     with pytest.raises(CampaignInterrupted) as info:
@@ -324,38 +311,12 @@ def test_resume_cli_exit_2_one_line_naming_the_line(tmp_path, monkeypatch, capsy
 
 # --------------------------------------------------------------------------- lazy jobs, bounded in flight
 
-def _endless(counter):
-    """A campaign far too big to list: 10^12 jobs generated on demand; counts those taken."""
-    def make():
-        k = 0
-        while True:
-            counter.append(k)
-            yield Job("single_rect", "dwa", k, (), 12.5)
-            k += 1
-    return campaign.JobSet(make, 10**12)
-
-
 @pytest.mark.parametrize("workers", [1, 2])
-def test_a_huge_lazy_campaign_is_taken_only_as_far_as_it_runs(tmp_path, workers):
-    taken: list[int] = []
-    finished: list[int] = []
-
-    class Bar:  # Ctrl-C after the fifth finished row
-        def __init__(self, *a, total=None, **kw):
-            assert total == 10**12
-
-        def update(self, k=1):
-            finished.append(k)
-            if len(finished) == 5:
-                raise KeyboardInterrupt
-
-        def close(self):
-            pass
-
-    import unittest.mock
-
-    with unittest.mock.patch.object(campaign, "tqdm", Bar), pytest.raises(CampaignInterrupted) as info:
-        run_jobs(_endless(taken), workers=workers, journal=tmp_path / "runs.jsonl", runner=fake_plain)
+def test_a_huge_lazy_campaign_is_taken_only_as_far_as_it_runs(tmp_path, workers, ctrl_c_after, endless_jobs):
+    jobs, taken = endless_jobs(10**12, 12.5)
+    ctrl_c_after(5, total=10**12)  # Ctrl-C after the fifth finished row
+    with pytest.raises(CampaignInterrupted) as info:
+        run_jobs(jobs, workers=workers, journal=tmp_path / "runs.jsonl", runner=fake_plain)
     assert (info.value.saved, info.value.total) == (5, 10**12)
     # in this process one job at a time; with the pool at most 2 x workers in flight beyond the finished
     assert len(taken) <= 5 + (0 if workers == 1 else 2 * workers)
