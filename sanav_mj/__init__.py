@@ -18,10 +18,12 @@ from sanav_mj.envs import register_envs as _register_envs
 
 __version__ = "0.1.0"
 
-__all__ = ["Mismatch", "RunResult", "build_map", "load_scenario", "plan", "run_scenario", "__version__"]
+__all__ = ["ControllerSpec", "Mismatch", "RunResult", "build_map", "load_scenario", "plan", "run_bench",
+           "run_robustness", "run_scenario", "__version__"]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs
-    from sanav_mj.api import Mismatch, RunResult, build_map, load_scenario, plan, run_scenario
+    from sanav_mj.api import (ControllerSpec, Mismatch, RunResult, build_map, load_scenario, plan, run_bench,
+                              run_robustness, run_scenario)
 
 _API = frozenset(__all__) - {"__version__"}
 

@@ -26,9 +26,11 @@ from typing import Any
 
 import numpy as np
 
-from sanav_mj.control.factory import CONTROLLER_NAMES
+from sanav_mj.control.spec import CONTROLLER_NAMES, ControllerSpec
+from sanav_mj.eval.bench import run_bench
+from sanav_mj.eval.robustness import run_robustness
 from sanav_mj.eval.episode import DEFAULT_MARGIN_M, Prepared, planner_config
-from sanav_mj.eval.episode import run_scenario as _run_scenario
+from sanav_mj.eval import episode as _episode
 from sanav_mj.mapping.safe_areas import MERGE_METHODS, SafeAreaMap
 from sanav_mj.planning import Plan, PlannerConfig
 from sanav_mj.scene import Scenario
@@ -36,7 +38,8 @@ from sanav_mj.scene import load_scenario as _load_scenario
 from sanav_mj.sim.mismatch import Mismatch, MismatchError, mismatch_keys
 from sanav_mj.sim.runner import Episode
 
-__all__ = ["Mismatch", "RunResult", "build_map", "load_scenario", "plan", "run_scenario"]
+__all__ = ["ControllerSpec", "Mismatch", "RunResult", "build_map", "load_scenario", "plan", "run_bench",
+           "run_robustness", "run_scenario"]
 
 ScenarioLike = Scenario | str | Path
 
@@ -184,6 +187,11 @@ class RunResult:
     start: np.ndarray
 
     @property
+    def controller(self) -> str:
+        """The controller's name (``"sa-mpc"``, ``"mpc"``, ``"dwa"``, ``"dqn"``)."""
+        return str(self.document["controller"])
+
+    @property
     def success(self) -> bool:
         """The goal was reached with no robot-obstacle contact before it."""
         return bool(self.document["success"])
@@ -201,7 +209,7 @@ class RunResult:
 
 def run_scenario(
     scenario: ScenarioLike,
-    controller: str = "sa-mpc",
+    controller: str | ControllerSpec = "sa-mpc",
     seed: int = 0,
     mismatch: Mismatch | Mapping[str, float] | None = None,
     yaw: float | None = None,
@@ -215,7 +223,10 @@ def run_scenario(
     Args:
         scenario: a :class:`~sanav_mj.scene.Scenario`, an MJCF path or a built-in name.
         controller: ``"sa-mpc"`` (the paper's method), ``"mpc"`` (obstacle-penalty MPC),
-            ``"dwa"`` (dynamic window) or ``"dqn"`` (the shipped DQN policy).
+            ``"dwa"`` (dynamic window) or ``"dqn"`` (the shipped DQN policy) with their default
+            settings, or a :class:`ControllerSpec` (a name and its configurations, e.g.
+            ``ControllerSpec("sa-mpc", sa_mpc=replace(MPCConfig(), horizon=30))``), which the
+            planner, the controller and the plots all read.
         seed: integer >= 0; draws the start yaw (unless ``yaw`` is given), the measurement
             noise and the control-period jitter.
         mismatch: plant-vs-model differences, a :class:`Mismatch` or a dict such as
@@ -231,12 +242,17 @@ def run_scenario(
     Returns:
         A :class:`RunResult`; ``to_dict()`` is the ``run --json`` document.
     """
-    if controller not in CONTROLLER_NAMES:
-        raise ValueError(f"controller: expected one of {', '.join(CONTROLLER_NAMES)}, got {controller!r}")
+    if isinstance(controller, ControllerSpec):
+        spec = controller
+    elif isinstance(controller, str) and controller in CONTROLLER_NAMES:
+        spec = ControllerSpec(controller)
+    else:
+        raise ValueError(f"controller: expected one of {', '.join(CONTROLLER_NAMES)} or a ControllerSpec, "
+                         f"got {controller!r}")
     if sensing not in ("map", "lidar"):
         raise ValueError(f"sensing: expected 'map' or 'lidar', got {sensing!r}")
-    if sensing == "lidar" and controller != "sa-mpc":
-        raise ValueError(f"sensing: 'lidar' is supported for controller 'sa-mpc' only, got controller {controller!r}")
+    if sensing == "lidar" and spec.name != "sa-mpc":
+        raise ValueError(f"sensing: 'lidar' is supported for controller 'sa-mpc' only, got controller {spec.name!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= 2**31 - 1:
         raise ValueError(f"seed: expected an integer 0 <= seed < 2**31, got {seed!r}")
     if yaw is not None and (isinstance(yaw, bool) or not isinstance(yaw, (int, float)) or not math.isfinite(yaw)):
@@ -245,9 +261,10 @@ def run_scenario(
         math.isfinite(time_limit_s) and time_limit_s > 0
     ):
         raise ValueError(f"time_limit_s: expected a finite number > 0 [s], got {time_limit_s!r}")
-    out = _run_scenario(
+    out = _episode.run_scenario(  # looked up at call time (tests replace it)
         _scenario(scenario),
-        controller=controller,
+        controller=spec.name,
+        controller_spec=spec,
         seed=int(seed),
         yaw=None if yaw is None else float(yaw),
         resolution=_resolution(resolution),

@@ -1,4 +1,5 @@
-"""The ``sanav-mj`` command line (see the design contract for the commands and JSON).
+"""The ``sanav-mj`` command line (``sanav-mj COMMAND --help``; the JSON and campaign files
+it writes are described field by field in docs/outputs.md).
 
 Exit codes: 0 success; 1 a run ended without reaching the goal; 2 bad input (one line on
 stderr naming the file or argument and what is wrong, no traceback), which includes an output
@@ -424,7 +425,7 @@ def _cmd_areas(args) -> int:
 
 
 def _cmd_run(args) -> int:
-    from sanav_mj.eval.episode import run_scenario
+    from sanav_mj.api import run_scenario  # the CLI is a thin layer over the Python API
     from sanav_mj.sim.mismatch import parse_mismatch
 
     mismatch = parse_mismatch(args.mismatch)
@@ -443,7 +444,7 @@ def _cmd_run(args) -> int:
         sensing=args.sensing,
         record_sensing=args.rrd is not None,
     )
-    doc = out.document
+    doc = out.to_dict()  # exactly what ``run_scenario(...).to_dict()`` gives
 
     def plot() -> None:
         from sanav_mj.eval.plots import plot_run

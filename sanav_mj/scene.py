@@ -29,12 +29,19 @@ naming the file):
 - **Start / goal**: ``start`` has 3 finite values, ``goal`` 2; both lie inside the workspace
   shrunk by the inflation radius ``footprint_radius + margin`` and at least that far from
   every obstacle's footprint.
+- **Numbers**: every geom's position, size and orientation and every body's position and
+  orientation are finite (no NaN / inf); the robot's parameters lie in :data:`ROBOT_RANGES`;
+  ``<option timestep>`` is finite and > 0, and before a run :func:`check_timestep` requires
+  10 to 1000 physics steps per control period (:data:`STEPS_PER_PERIOD`).
+- **MuJoCo's messages**: its warnings are kept in memory (:func:`mujoco_warnings`), never
+  printed to stderr or written to ``MUJOCO_LOG.TXT``.
 """
 
 from __future__ import annotations
 
 import math
 import re
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -57,6 +64,52 @@ _VERTICAL_TOL = 1e-6
 
 class ScenarioError(ValueError):
     """A scenario file or name is unusable. The message is one line naming the file and the rule."""
+
+
+#: Physical ranges of the robot parameters :func:`robot_params` reads, ``name: (low, high, unit, why)``.
+#: They bracket real wheeled ground robots with a wide margin; a value outside is a typo or a unit
+#: error (a wheel speed range of 1e12 rad/s), never a robot the controllers (0.1 s period) can drive.
+ROBOT_RANGES: dict[str, tuple[float, float, str, str]] = {
+    "wheel_radius": (0.005, 1.0, "m", "wheels of ground robots, 5 mm to 1 m"),
+    "track": (0.02, 5.0, "m", "wheel spacing of ground robots, 2 cm to 5 m"),
+    "footprint_radius": (0.01, 10.0, "m", "robot footprint, 1 cm to 10 m"),
+    "wheel_speed_max": (0.01, 1000.0, "rad/s", "wheel speed limit, up to about 9 500 rpm"),
+    "v_max": (0.01, 20.0, "m/s", "top speed; at 20 m/s a 0.1 s control period already spans 2 m"),
+    "a_max": (0.01, 50.0, "m/s^2", "acceleration, up to 5 g (traction allows about 1 g)"),
+    "alpha_max": (0.01, 500.0, "rad/s^2", "yaw acceleration"),
+    "w_cap": (0.01, 50.0, "rad/s", "yaw-rate cap, up to 8 turns per second"),
+    "mass": (0.01, 10000.0, "kg", "total robot mass, 10 g to 10 t"),
+}
+
+#: Bounds on the number of physics steps per control period (``control period / <option timestep>``).
+#: At least 10: the plant holds each command for a whole number of steps, so the hold differs from
+#: the period by up to half a step (<= 5 % at 10 steps), and contacts need several steps per period.
+#: At most 1000 (0.1 ms at a 0.1 s period): the robot model steps in about 20 us, so a 60 s run costs
+#: about 12 s of physics; 1e-7 s would be a million steps per period (the run never ends).
+STEPS_PER_PERIOD = (10, 1000)
+
+_MUJOCO_WARNINGS: deque[str] = deque(maxlen=100)
+
+
+def _keep_mujoco_warning(message: str) -> None:
+    _MUJOCO_WARNINGS.append(str(message).strip())
+
+
+def capture_mujoco_warnings() -> None:
+    """Route MuJoCo's warnings to :func:`mujoco_warnings` instead of stderr and ``MUJOCO_LOG.TXT``.
+
+    MuJoCo's default warning handler prints ``WARNING: ...`` to stderr and appends it to
+    ``MUJOCO_LOG.TXT`` in the current folder. This installs a handler (process-wide, as MuJoCo's
+    handler is global; idempotent) that keeps the last 100 messages in memory instead. Called by
+    every function here that compiles a scenario, so loading a file never writes to stderr or
+    leaves files behind; problems that matter are reported by the checks as a ScenarioError.
+    """
+    mujoco.set_mju_user_warning(_keep_mujoco_warning)
+
+
+def mujoco_warnings() -> list[str]:
+    """The last (up to 100) MuJoCo warnings captured since :func:`capture_mujoco_warnings`, oldest first."""
+    return list(_MUJOCO_WARNINGS)
 @dataclass(frozen=True)
 class Obstacle:
     """A static obstacle in the world frame, projected to the floor plane.
@@ -264,10 +317,18 @@ def robot_params(model: mujoco.MjModel) -> RobotParams:
     a_max, alpha_max, w_cap = (float(v) for v in model.numeric_data[adr : adr + 3])
     values = {"wheel_radius": wheel_radius, "track": track, "footprint_radius": footprint,
               "wheel_speed_max": wheel_speed_max, "a_max": a_max, "alpha_max": alpha_max, "w_cap": w_cap}
+    values["v_max"] = wheel_speed_max * wheel_radius
+    values["mass"] = float(model.body_subtreemass[base])
     for key, val in values.items():
         if not (math.isfinite(val) and val > 0):
             raise ScenarioError(f"robot model: {key} must be a finite number > 0, got {val}")
-    v_max = wheel_speed_max * wheel_radius
+        low, high, unit, why = ROBOT_RANGES[key]
+        if not low <= val <= high:
+            raise ScenarioError(
+                f"robot model: {key} = {val:.6g} {unit} is outside the physical range [{low:g}, {high:g}] {unit} "
+                f"({why}); {_SOURCE[key]}"
+            )
+    v_max = values["v_max"]
     return RobotParams(
         wheel_radius=wheel_radius,
         track=track,
@@ -278,6 +339,69 @@ def robot_params(model: mujoco.MjModel) -> RobotParams:
         a_max=a_max,
         alpha_max=alpha_max,
     )
+
+
+#: Where each checked robot value comes from in the MJCF (for the error message).
+_SOURCE = {
+    "wheel_radius": "the wheel geoms' size[0]",
+    "track": "the lateral distance of the wheel bodies",
+    "footprint_radius": "the robot's colliding geoms",
+    "wheel_speed_max": "the wheel actuators' ctrlrange",
+    "v_max": "wheel_speed_max (ctrlrange) x wheel_radius",
+    "a_max": f"custom numeric {ROBOT_LIMITS!r}[0]",
+    "alpha_max": f"custom numeric {ROBOT_LIMITS!r}[1]",
+    "w_cap": f"custom numeric {ROBOT_LIMITS!r}[2]",
+    "mass": f"the masses of body {ROBOT_BASE!r} and its children",
+}
+
+
+def _check_finite_elements(model: mujoco.MjModel) -> None:
+    """Every geom's position, size and orientation and every body's position and orientation is finite.
+
+    Raises:
+        ScenarioError: naming the element and the attribute (NaN or inf in the file).
+    """
+    checks = (
+        ("geom", model.ngeom, _geom_name, (("pos", model.geom_pos), ("size", model.geom_size),
+                                           ("orientation (quat/euler/axisangle/zaxis/xyaxes)", model.geom_quat))),
+        ("body", model.nbody, _body_name, (("pos", model.body_pos),
+                                           ("orientation (quat/euler/axisangle/zaxis/xyaxes)", model.body_quat))),
+    )
+    for kind, count, name_of, fields in checks:
+        for attr, values in fields:
+            bad = np.flatnonzero(~np.all(np.isfinite(values[:count]), axis=1))
+            if bad.size:
+                k = int(bad[0])
+                raise ScenarioError(
+                    f"{kind} {name_of(model, k)!r}: {attr} must be finite numbers, got "
+                    f"{np.asarray(values[k]).tolist()} (NaN or inf in the file)"
+                )
+
+
+def check_timestep(scenario: "Scenario", control_period_s: float) -> int:
+    """Check the scenario's ``<option timestep>`` against the control period; the physics steps per period.
+
+    Args:
+        scenario: a loaded scenario (its nominal model's timestep is checked).
+        control_period_s: [s] the controller's period ``dt`` (> 0).
+
+    Returns:
+        ``round(control_period_s / timestep)``, within :data:`STEPS_PER_PERIOD`.
+
+    Raises:
+        ScenarioError: the timestep is not finite, not > 0, or divides the period into fewer than
+            10 or more than 1000 steps (message: the file, then ``<option timestep>``).
+    """
+    ts = float(scenario.model.opt.timestep)
+    lo, hi = STEPS_PER_PERIOD
+    rule = (f"expected a finite number in [{control_period_s / hi:.3g}, {control_period_s / lo:.3g}] s "
+            f"({lo} to {hi} physics steps per {control_period_s:g} s control period; the robot's default is 0.002 s)")
+    if not (math.isfinite(ts) and ts > 0):
+        raise ScenarioError(f"{scenario.path}: <option timestep>: {rule}, got {ts!r}")
+    steps = control_period_s / ts
+    if not lo <= steps <= hi:
+        raise ScenarioError(f"{scenario.path}: <option timestep>: {rule}, got {ts:g} s ({steps:.3g} steps per period)")
+    return int(math.floor(steps + 0.5))
 
 
 def floor_geom_id(model: mujoco.MjModel) -> int:
@@ -368,6 +492,11 @@ def resolve_scenario_path(spec: str | Path) -> Path:
     Raises:
         ScenarioError: neither an existing file nor a built-in name.
     """
+    if not str(spec).strip():
+        raise ScenarioError(
+            f"scenario argument is empty ({str(spec)!r}): give a path to an MJCF file or a built-in name "
+            f"({', '.join(builtin_scenarios())})"
+        )
     path = Path(spec).expanduser()
     if path.is_file():
         return path.resolve()
@@ -416,6 +545,7 @@ def compile_scenario_model(path: Path) -> mujoco.MjModel:
     Raises:
         ScenarioError: one line naming the file and MuJoCo's (condensed) message.
     """
+    capture_mujoco_warnings()
     try:
         return mujoco.MjModel.from_xml_path(str(path))
     except ValueError as err:
@@ -435,6 +565,7 @@ def scenario_spec(scenario: Scenario | str | Path) -> mujoco.MjSpec:
     Use it to build modified model copies (mismatch) without touching ``scenario.model``.
     """
     path = scenario.path if isinstance(scenario, Scenario) else resolve_scenario_path(scenario)
+    capture_mujoco_warnings()
     try:
         return mujoco.MjSpec.from_file(str(path))
     except ValueError as err:
@@ -466,10 +597,13 @@ def _numeric(model: mujoco.MjModel, name: str, size: int, fmt: str) -> np.ndarra
 def _workspace(model: mujoco.MjModel, data: mujoco.MjData, floor: int) -> np.ndarray:
     name = _geom_name(model, floor)
     size = model.geom_size[floor]
-    if not (size[0] > 0 and size[1] > 0):
+    if not (np.all(np.isfinite(size[:2])) and size[0] > 0 and size[1] > 0):
+        # MuJoCo reads a plane size of 0 as infinite; negative and non-finite sizes are plain errors.
+        what = ("a non-finite size" if not np.all(np.isfinite(size[:2]))
+                else "a negative size" if np.any(size[:2] < 0) else "infinite size (0 means infinite in MuJoCo)")
         raise ScenarioError(
-            f"floor plane {name!r} has infinite size {size[:2].tolist()}; set size=\"hx hy 0.1\" with hx, hy > 0 "
-            "to define the workspace"
+            f"floor plane {name!r} has {what} {size[:2].tolist()}; set size=\"hx hy 0.1\" with finite hx, hy > 0 "
+            "[m] (half extents) to define the workspace"
         )
     rot = data.geom_xmat[floor].reshape(3, 3)
     if not np.allclose(rot, np.eye(3), atol=1e-9):
@@ -558,6 +692,11 @@ def load_scenario(spec: str | Path, margin: float = 0.05) -> Scenario:
     path = resolve_scenario_path(spec)
     model = compile_scenario_model(path)
     try:
+        _check_finite_elements(model)
+        ts = float(model.opt.timestep)
+        if not (math.isfinite(ts) and ts > 0):
+            raise ScenarioError(f"<option timestep>: expected a finite number > 0 [s] (the robot's default is 0.002), "
+                                f"got {ts!r}")
         robot = robot_params(model)
         robot_qpos(model, np.zeros(3))  # checks the free joint
         data = _kinematics_at_qpos0(model)

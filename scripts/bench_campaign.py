@@ -1,10 +1,11 @@
 """Campaign machinery figures: memory of a huge lazy sweep, and pool vs Ray throughput.
 
-    python scripts/bench_campaign.py memory [--runs N]
+    python scripts/bench_campaign.py memory [--runs N] [--complete]
         A robustness sweep of 200 x 200 grid points x 10 000 seeds on one scenario
         (400 million jobs) with a trivial job function (no simulation) in this process,
         stopped after N finished runs: the resident memory before the campaign, after the
-        first run and after N runs.
+        first run, after 1 000, N/2 and N runs. With --complete: a 2 x 2 sweep of N runs
+        run to its end, the outputs written (RSS after them too).
 
     python scripts/bench_campaign.py throughput [--scenarios ...] [--runs N] [--workers W]
         The same bench campaign (sa-mpc, time limit 30 s) on the process pool and on a local
@@ -50,20 +51,31 @@ def trivial_run(job):
             "pipeline_ms": stats, "mismatch": parse_mismatch(list(job.mismatch)).changed(), **dict(job.tags)}
 
 
-def memory(runs: int) -> None:
+def memory(runs: int, complete: bool = False) -> None:
+    """RSS of a robustness campaign with a trivial job function, in this process, at a few
+    points of the campaign: the huge lazy sweep stopped after ``runs`` runs, or (``complete``)
+    a whole 2 x 2 sweep of ``runs`` runs with its outputs written."""
     from sanav_mj.eval import campaign
     from sanav_mj.eval.campaign import CampaignInterrupted
     from sanav_mj.eval.robustness import parse_sweep, run_robustness
 
-    values = ",".join(f"{0.5 + 0.005 * i:.3f}" for i in range(200))
-    sweep = parse_sweep([f"mass={values}", f"track={values}"])
+    if complete:
+        seeds = max(runs // 4, 1)
+        sweep = parse_sweep(["mass=1,1.2", "track=1,1.2"])
+        what = f"sweep 2 x 2 x {seeds} seeds = {4 * seeds:,} jobs, run to the end (outputs written)"
+    else:
+        values = ",".join(f"{0.5 + 0.005 * i:.3f}" for i in range(200))
+        sweep = parse_sweep([f"mass={values}", f"track={values}"])
+        seeds = 10_000
+        what = f"sweep 200 x 200 x 10000 seeds = {200 * 200 * 10_000:,} jobs, stopped after {runs:,} runs"
     marks: dict[str, tuple[float, float]] = {}
     count = {"n": 0}
+    checkpoints = {2, 1_000, runs // 2, runs}
 
     def run(job):
         count["n"] += 1
-        if count["n"] == 2:
-            marks["after the first run"] = _rss_mb()
+        if count["n"] in checkpoints:
+            marks["after the first run" if count["n"] == 2 else f"after {count['n'] - 1:,} runs"] = _rss_mb()
         if count["n"] > runs:
             raise KeyboardInterrupt
         return trivial_run(job)
@@ -73,14 +85,14 @@ def memory(runs: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         try:
-            run_robustness(["single_rect"], sweep, 10_000, "dwa", 1, Path(tmp))
+            run_robustness(["single_rect"], sweep, seeds, "dwa", 1, Path(tmp))
+            marks[f"after {count['n']:,} runs + outputs"] = _rss_mb()
         except CampaignInterrupted as exc:
-            marks[f"after {exc.saved} runs"] = _rss_mb()
+            marks[f"after {exc.saved:,} runs (Ctrl-C)"] = _rss_mb()
         wall = time.perf_counter() - t0
-    print(f"sweep 200 x 200 x 10000 seeds = {200 * 200 * 10_000:,} jobs, trivial job function, in this process "
-          f"({wall:.1f} s, load {_load()})")
-    for name, (rss, peak) in marks.items():
-        print(f"  {name:24s} RSS {rss:7.1f} MB   peak {peak:7.1f} MB")
+    print(f"{what}, trivial job function, in this process ({wall:.1f} s, load {_load()})")
+    for name, (rss, peak) in sorted(marks.items(), key=lambda kv: kv[1][1]):
+        print(f"  {name:32s} RSS {rss:7.1f} MB   peak {peak:7.1f} MB")
 
 
 def throughput(scenarios: list[str], runs: int, workers: int, controller: str, repeats: int) -> None:
@@ -126,6 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = p.add_subparsers(dest="what", required=True)
     m = sub.add_parser("memory")
     m.add_argument("--runs", type=int, default=20_000)
+    m.add_argument("--complete", action="store_true", help="a whole 2 x 2 sweep of --runs runs, outputs written")
     t = sub.add_parser("throughput")
     t.add_argument("--scenarios", nargs="+", default=["single_rect", "double_rect", "u_shape"])
     t.add_argument("--runs", type=int, default=4)
@@ -134,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--repeats", type=int, default=2)
     args = p.parse_args(argv)
     if args.what == "memory":
-        memory(args.runs)
+        memory(args.runs, args.complete)
     else:
         throughput(args.scenarios, args.runs, args.workers, args.controller, args.repeats)
     return 0

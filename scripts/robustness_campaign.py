@@ -175,13 +175,25 @@ def _info(folder: Path) -> dict:
     return json.loads(path.read_text()) if path.exists() else {}
 
 
+def _cell(runs: list[dict[str, str]]):
+    """The package's running summary (:class:`sanav_mj.eval.robustness.CellSummary`, as
+    ``summary.csv`` is made) of some rows of robustness.csv, read back from their text."""
+    from sanav_mj.eval.robustness import CellSummary
+
+    acc = CellSummary()
+    for r in runs:
+        clear = r["min_clearance_m"]
+        acc.add({"reason": r["reason"], "success": r["success"] == "True", "collisions": int(r["collisions"] or 0),
+                 "min_clearance_m": None if clear in ("", "None") else float(clear)})
+    return acc
+
+
 def _aggregate(runs: list[dict[str, str]]) -> tuple[int, float, float, float]:
-    """(runs, success %, collision %, min clearance [m]) of some rows of robustness.csv."""
-    n = len(runs)
-    ok = sum(r["success"] == "True" for r in runs)
-    hit = sum(int(r["collisions"]) > 0 for r in runs)
-    clear = [float(r["min_clearance_m"]) for r in runs if r["min_clearance_m"] not in ("", "None")]
-    return n, 100.0 * ok / max(n, 1), 100.0 * hit / max(n, 1), min(clear, default=math.nan)
+    """(runs, success %, collision %, min clearance [m]) of some rows of robustness.csv (rows of
+    runs that raised are left out, as in summary.csv; no run at all: 0 %, NaN clearance)."""
+    s = _cell(runs).summary()
+    n = s["runs"]
+    return n, s["success_rate"] if n else 0.0, s["collision_rate"] if n else 0.0, s["min_clearance_m"]
 
 
 def write_report(out: Path, sweeps: list[Sweep], walls: dict[str, float], args_line: str) -> Path:
@@ -244,17 +256,16 @@ def write_report(out: Path, sweeps: list[Sweep], walls: dict[str, float], args_l
         tot: dict[str, int] = {}
         n_all = 0
         for sw in beyond:
-            runs = _read(out / sw.name / "robustness.csv")
-            failed = [r for r in runs if r["success"] != "True"]
-            by = {k: sum(r["reason"] == k for r in failed)
-                  for k in ("collision", "stuck", "timeout", "solver_failure", "bad_measurement")}
-            n_all += len(runs)
-            tot["failed"] = tot.get("failed", 0) + len(failed)
+            acc = _cell(_read(out / sw.name / "robustness.csv"))
+            failed = acc.all - acc.success  # a run succeeds exactly when its reason is goal
+            by = {k: acc.reasons.get(k, 0) for k in ("collision", "stuck", "timeout", "solver_failure", "bad_measurement")}
+            n_all += acc.all
+            tot["failed"] = tot.get("failed", 0) + failed
             for k, v in by.items():
                 tot[k] = tot.get(k, 0) + v
-            lines.append(f"| {sw.name} | {len(runs)} | {len(failed)} | " + " | ".join(str(v) for v in by.values())
-                         + f" | {100.0 * by['collision'] / max(len(runs), 1):.1f} | "
-                         f"{100.0 * by['collision'] / max(len(failed), 1):.1f} |")
+            lines.append(f"| {sw.name} | {acc.all} | {failed} | " + " | ".join(str(v) for v in by.values())
+                         + f" | {100.0 * by['collision'] / max(acc.all, 1):.1f} | "
+                         f"{100.0 * by['collision'] / max(failed, 1):.1f} |")
         lines.append(f"| **all** | {n_all} | {tot['failed']} | " + " | ".join(
             str(tot[k]) for k in ("collision", "stuck", "timeout", "solver_failure", "bad_measurement"))
             + f" | {100.0 * tot['collision'] / max(n_all, 1):.1f} | "

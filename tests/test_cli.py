@@ -126,16 +126,8 @@ def _fake_doc(job):
     }
 
 
-def test_robustness_fixed_and_time_limit_reach_every_run(tmp_path, capsys, monkeypatch):
-    from sanav_mj.eval import robustness
-
-    seen = []
-
-    def fake_run_jobs(jobs, workers, desc, **kw):
-        seen.extend(jobs)
-        return [_fake_doc(j) for j in jobs]
-
-    monkeypatch.setattr(robustness, "run_jobs", fake_run_jobs)
+def test_robustness_fixed_and_time_limit_reach_every_run(tmp_path, capsys, fake_campaign_runs):
+    seen = fake_campaign_runs(_fake_doc)
     out = tmp_path / "rb"
     code, stdout, err = _run(["robustness", "single_rect", "--sweep", "wheel_radius=0.9,1.1", "--seeds", "2",
                               "--fixed", "friction=0.3", "delay=1", "--time-limit", "12.5", "--out", str(out)], capsys)
@@ -151,12 +143,8 @@ def test_robustness_fixed_and_time_limit_reach_every_run(tmp_path, capsys, monke
     assert "wrote" in stdout and "success_rate=0" in stdout
 
 
-def test_robustness_defaults_without_fixed(tmp_path, capsys, monkeypatch):
-    from sanav_mj.eval import robustness
-
-    seen = []
-    monkeypatch.setattr(robustness, "run_jobs", lambda jobs, workers, desc, **kw: seen.extend(jobs) or
-                        [_fake_doc(j) for j in jobs])
+def test_robustness_defaults_without_fixed(tmp_path, capsys, fake_campaign_runs):
+    seen = fake_campaign_runs(_fake_doc)
     code, _, err = _run(["robustness", "single_rect", "--seeds", "1", "--out", str(tmp_path / "rb")], capsys)
     assert code == 0, err
     assert {j.time_limit_s for j in seen} == {60.0}
@@ -408,43 +396,8 @@ def test_a_run_that_fails_or_is_interrupted_leaves_no_output_file(tmp_path, caps
     assert not out.exists()  # no empty file, not even the folder
 
 
-def _fill_disk_after(monkeypatch, suffix: str, keep: int):
-    """Writes of a temporary output whose final name ends in ``suffix`` stop after ``keep`` bytes with ENOSPC."""
-    import builtins
-    import errno
-
-    from sanav_mj import outputs
-
-    class Full:
-        def __init__(self, fh):
-            self.fh, self.left = fh, keep
-
-        def write(self, data):
-            if len(data) > self.left:
-                self.fh.write(data[:self.left])
-                self.left = 0
-                raise OSError(errno.ENOSPC, "No space left on device")
-            self.left -= len(data)
-            return self.fh.write(data)
-
-        def __getattr__(self, name):
-            return getattr(self.fh, name)
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            self.fh.close()
-
-    def fake_open(path, mode="r", *a, **k):
-        fh = builtins.open(path, mode, *a, **k)
-        return Full(fh) if "w" in mode and str(path).endswith(".part") and f"{suffix}." in Path(path).name else fh
-
-    monkeypatch.setattr(outputs, "open", fake_open, raising=False)
-
-
-def test_a_recording_cut_short_by_a_full_disk_is_exit_2_and_the_rest_is_kept(tmp_path, capsys, monkeypatch):
-    _fill_disk_after(monkeypatch, ".rrd", keep=4096)
+def test_a_recording_cut_short_by_a_full_disk_is_exit_2_and_the_rest_is_kept(tmp_path, capsys, fill_disk):
+    fill_disk(keep=4096, ending=".rrd")
     rrd, js, png = tmp_path / "r.rrd", tmp_path / "r.json", tmp_path / "r.png"
     code, out, err = _run(["run", "single_rect", "--controller", "dwa", "--time-limit", "0.5", "--rrd", str(rrd),
                            "--json", str(js), "--plot", str(png)], capsys)
@@ -492,10 +445,8 @@ def test_version_and_python_m_sanav_mj(capsys):
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "nope" in proc.stderr
 
 
-def test_robustness_says_what_it_sweeps(tmp_path, capsys, monkeypatch):
-    from sanav_mj.eval import robustness
-
-    monkeypatch.setattr(robustness, "run_jobs", lambda jobs, workers, desc, **kw: [_fake_doc(j) for j in jobs])
+def test_robustness_says_what_it_sweeps(tmp_path, capsys, fake_campaign_runs):
+    fake_campaign_runs(_fake_doc)
     code, out, err = _run(["robustness", "single_rect", "--seeds", "1", "--out", str(tmp_path / "a")], capsys)
     assert code == 0, err
     assert out.splitlines()[0] == ("robustness: sweeping wheel_radius = 0.9, 1, 1.1 (the default; choose with "
@@ -580,3 +531,23 @@ def test_bench_and_robustness_pass_sensing_to_every_run(tmp_path, capsys, monkey
 
     assert job_key(Job("u_shape", "sa-mpc", 0)) == '["u_shape","sa-mpc",0,[],60.0]'
     assert job_key(Job("u_shape", "sa-mpc", 0, sensing="lidar")) == '["u_shape","sa-mpc",0,[],60.0,"lidar"]'
+
+
+def test_run_is_a_thin_layer_over_the_python_api(tmp_path, capsys, monkeypatch):
+    """``run`` calls :func:`sanav_mj.api.run_scenario` and writes its ``to_dict()``: the two cannot diverge."""
+    import sanav_mj.api as api
+
+    results, real = [], api.run_scenario
+
+    def spy(*a, **k):
+        results.append(real(*a, **k))
+        return results[-1]
+
+    monkeypatch.setattr(api, "run_scenario", spy)
+    js = tmp_path / "r.json"
+    code, out, _ = _run(["run", "single_rect", "--controller", "dwa", "--seed", "2", "--time-limit", "0.5",
+                         "--mismatch", "delay=1", "--json", str(js)], capsys)
+    assert len(results) == 1 and code == (0 if results[0].success else 1)
+    assert json.loads(js.read_text()) == results[0].to_dict()  # wall-clock fields included: the same object
+    assert results[0].to_dict()["mismatch"] == {"delay": 1} and results[0].controller == "dwa"
+    assert out.startswith("single_rect / dwa seed 2:")

@@ -14,14 +14,11 @@ import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
 
-from sanav_mj.eval.episode import Prepared
-from sanav_mj.mapping.occupancy import OccupancyGrid
+from _helpers import make_prep
+
 from sanav_mj.mapping.quadtree import QuadtreeLeaves
-from sanav_mj.mapping.safe_areas import SafeAreaMap, SafeAreas
-from sanav_mj.planning.reference import Plan, Reference
 from sanav_mj.record import RecordConfig, Recorder, leaf_rects, robot_footprint
 from sanav_mj.resources import robot_model_path
-from sanav_mj.scene import Obstacle, RobotParams, Scenario
 from sanav_mj.sim.runner import Episode, EpisodeTrace
 
 N_STEPS = 30
@@ -29,31 +26,6 @@ HORIZON = 5
 
 
 # ---------------------------------------------------------------------------- fixtures
-def make_prep() -> Prepared:
-    """A small hand-made map and plan (3 safe areas, 6 quadtree leaves, 2 obstacles)."""
-    model = mujoco.MjModel.from_xml_path(str(robot_model_path()))
-    robot = RobotParams(0.1, 0.38, 0.33, 20.0, 2.0, 3.0, 1.5, 4.0)
-    obstacles = (
-        Obstacle("wall", "box", np.array([2.0, 0.0]), 0.3, np.array([0.1, 0.8]), 0.5, 1),
-        Obstacle("post", "cylinder", np.array([1.0, 1.2]), 0.0, np.array([0.2, 0.2]), 0.5, 2),
-    )
-    bounds = np.array([-1.0, -2.0, 5.0, 2.0])
-    sc = Scenario("fixture", Path("fixture.xml"), model, obstacles, np.zeros(3), np.array([4.0, 0.0]), bounds, robot)
-    occ = np.zeros((8, 12), dtype=bool)
-    occ[2:6, 5:7] = True
-    grid = OccupancyGrid(occ, 0.5, np.array([-1.0, -2.0]), 0.38, bounds)
-    boxes = np.array([[0, 0, 4, 4], [0, 4, 4, 8], [0, 8, 4, 12], [4, 0, 8, 4], [4, 4, 8, 8], [4, 8, 8, 12]])
-    leaves = QuadtreeLeaves(boxes, np.array([True, False, True, True, False, True]), np.ones(6, dtype=np.int64))
-    rects = np.array([[-1, -2, 5, -1], [-1, -1, 1.5, 2], [2.5, -1, 5, 2]], dtype=float)
-    areas = SafeAreas(rects, np.array([[0, 1], [0, 2]]), np.array([2.0, 2.5]), np.zeros((2, 2, 2)))
-    wp = np.array([[0.0, 0.0], [1.0, -1.0], [3.0, -1.0], [4.0, 0.0]])
-    s = np.linspace(0.0, 1.0, 21)
-    states = np.column_stack((4.0 * s, -0.8 * np.sin(np.pi * s), np.zeros(21)))
-    ref = Reference(0.1, states, np.zeros((21, 2)), np.zeros(21, dtype=int))
-    plan = Plan(True, "ok", np.array([1, 0, 2]), np.array([4.0, 0.0]), wp, wp, states[:, :2], ref)
-    return Prepared(sc, SafeAreaMap(grid, leaves, np.zeros((0, 4), np.int64), areas, 1, "paper"), plan, {"total": 1.0})
-
-
 def make_trace(n: int = N_STEPS, horizon: int = HORIZON) -> EpisodeTrace:
     """A synthetic trace: horizon missing every 7th step (k % 7 == 3), a fallback every 10th
     step, a negative margin at step 5, a contact at the last step."""
@@ -218,8 +190,11 @@ def test_values_round_trip(recorded):
     trans = np.array([r[0] for r in e["data"]["Transform3D:translation"]])[order]
     quat = np.array([r[0] for r in e["data"]["Transform3D:quaternion"]])[order]
     poses = np.vstack((full.poses(), [[4.0, 0.0, 3.0]]))
-    np.testing.assert_allclose(trans[:, :2], poses[:, :2], atol=1e-6)
-    np.testing.assert_allclose(2 * np.arctan2(quat[:, 2], quat[:, 3]), poses[:, 2], atol=1e-6)
+    # float32 in the file: rounding to nearest is within half a float32 ulp of the largest coordinate
+    np.testing.assert_allclose(trans[:, :2], poses[:, :2], rtol=0, atol=0.5 * float(np.spacing(np.float32(np.abs(poses[:, :2]).max()))))
+    # float32 quaternion components (each within 2^-25 of a unit-norm value): the half-angle
+    # atan2 moves by <= (|cos| + |sin|) 2^-25 <= sqrt(2) 2^-25, the yaw by twice that (8.4e-8)
+    np.testing.assert_allclose(2 * np.arctan2(quat[:, 2], quat[:, 3]), poses[:, 2], rtol=0, atol=2 * np.sqrt(2) * 2.0**-25 + 4 * np.finfo(float).eps)
     # Negative margin at step 5 colours that horizon's last point red.
     hp = ents["/world/horizon/points"]
     row = hp["steps"].index(5)
@@ -425,7 +400,9 @@ def test_cli_run_writes_a_recording_of_every_step(tmp_path):
     np.testing.assert_allclose(scalars_by_step(ents["/plots/velocity/v_cmd"]), doc["trace"]["v"], atol=1e-12)
     e = ents["/world/robot"]
     trans = np.array([r[0] for r in e["data"]["Transform3D:translation"]])[np.argsort(e["steps"])]
-    np.testing.assert_allclose(trans[:steps, 0], doc["trace"]["x"], atol=1e-5)  # float32 in the file
+    # float32 in the file: within half a float32 ulp of the largest |x|
+    np.testing.assert_allclose(trans[:steps, 0], doc["trace"]["x"], rtol=0,
+                               atol=0.5 * float(np.spacing(np.float32(np.abs(doc["trace"]["x"]).max()))))
     res = rrd_verify(rrd)
     assert res.returncode == 0, res.stderr
 

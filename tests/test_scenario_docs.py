@@ -68,6 +68,10 @@ DECORATION = '<geom name="marking" type="sphere" pos="1 -2 0.01" size="0.1" cont
         ('<numeric name="goal"  data="7 1"/>', "", "missing goal"),
         ('data="7 1"', 'data="2.5 0.5"', "goal .* is inside obstacle 'wall'"),
         ('size="4.5 3 0.1"', 'size="0 0 0.1"', "floor plane 'floor'"),
+        ('size="4.5 3 0.1"', 'size="-4.5 3 0.1"', "floor plane 'floor' has a negative size"),
+        ('pos="5 -1.2 0.4"', 'pos="5 nan 0.4"', "geom 'pillar': pos must be finite"),
+        ('euler="0 0 20"', 'euler="0 0 inf"', "geom 'wall': orientation"),
+        ('<include file="diff_drive.xml"/>', '<include file="diff_drive.xml"/><option timestep="0"/>', r"<option timestep>"),
     ],
 )
 def test_documented_rejections(tmp_path, old, new, match):

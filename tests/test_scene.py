@@ -409,3 +409,139 @@ def test_moving_obstacle_is_an_error(write_scenario):
 def test_bad_margin(write_scenario):
     with pytest.raises(ValueError, match="margin must be a finite number >= 0"):
         load_scenario(write_scenario(), margin=-0.1)
+
+
+# ------------------------------------------------ non-finite numbers, empty argument, limits (issue 12)
+
+BLOCK = '<geom name="block" type="box" pos="2 2 0.25" size="0.2 0.3 0.25" {}/>'
+
+
+@pytest.mark.parametrize("attrs, fragment", [
+    ('pos="nan 2 0.25"', "geom 'block': pos must be finite"),
+    ('pos="2 inf 0.25"', "geom 'block': pos must be finite"),
+    ('size="inf 0.3 0.25"', "geom 'block': size must be finite"),
+    ('euler="0 0 nan"', "geom 'block': orientation"),
+    ('quat="nan 0 0 1"', "geom 'block': orientation"),
+    ('axisangle="0 0 1 nan"', "geom 'block': orientation"),
+    ('zaxis="0 nan 1"', "geom 'block': orientation"),
+    ('xyaxes="1 0 0 0 inf 0"', "geom 'block': orientation"),
+])
+def test_non_finite_geom_is_named(write_scenario, attrs, fragment):
+    geom = BLOCK.format(attrs)
+    if 'pos="' in attrs:
+        geom = geom.replace('pos="2 2 0.25" ', "")
+    if 'size="' in attrs:
+        geom = geom.replace('size="0.2 0.3 0.25" ', "")
+    path = write_scenario(geom)
+    msg = _error(path)
+    assert str(path) in msg and fragment in msg and "NaN or inf" in msg
+
+
+def test_non_finite_body_position_is_named(write_scenario):
+    path = write_scenario('<body name="grp" pos="0 nan 0"><geom name="b" type="box" pos="2 2 0.2" size="0.2 0.2 0.2"/></body>')
+    msg = _error(path)
+    assert str(path) in msg and "body 'grp': pos must be finite" in msg
+
+
+@pytest.mark.parametrize("size, fragment", [
+    ("inf 4 0.1", "geom 'floor': size must be finite"),
+    ("-6 4 0.1", "has a negative size [-6.0, 4.0]"),
+    ("nan 4 0.1", "'floor'"),  # MuJoCo refuses a NaN plane size itself; the message still names the geom
+])
+def test_bad_floor_size_is_named(write_scenario, size, fragment):
+    msg = _error(write_scenario(floor=f'<geom name="floor" type="plane" pos="4 0 0" size="{size}"/>'))
+    assert fragment in msg and "infinite size" not in msg
+
+
+def test_empty_argument_says_it_is_empty():
+    msg = _error("")
+    assert "scenario argument is empty" in msg and "not a file" not in msg
+
+
+@pytest.mark.parametrize("old, new, fragment", [
+    ('ctrlrange="-20 20"', 'ctrlrange="-1e12 1e12"', "wheel_speed_max = 1e+12 rad/s is outside the physical range"),
+    ('ctrlrange="-20 20"', 'ctrlrange="-500 500"', "v_max = 50 m/s is outside"),  # 500 rad/s x 0.1 m
+    ('size="0.1 0.1 0.025"', 'size="1e-9 0.1 0.025"', "wheel_radius = 1e-09 m is outside"),
+    ('data="1.5 4.0 3.0"', 'data="1e9 4.0 3.0"', "a_max = 1e+09 m/s^2 is outside"),
+    ('data="1.5 4.0 3.0"', 'data="1.5 4.0 1e6"', "w_cap = 1e+06 rad/s is outside"),
+    ('mass="12.5"', 'mass="1e9"', "mass = 1e+09 kg is outside"),
+])
+def test_absurd_robot_limits_are_refused(write_scenario, tmp_path, old, new, fragment):
+    text = robot_model_path().read_text()
+    assert old in text
+    (tmp_path / "diff_drive.xml").write_text(text.replace(old, new))
+    path = write_scenario(include="diff_drive.xml")
+    msg = _error(path)
+    assert str(path) in msg and fragment in msg and "robot model" in msg
+
+
+def test_builtin_robot_is_inside_the_ranges(builtins):
+    from sanav_mj.scene import ROBOT_RANGES
+
+    r = builtins["u_shape"].robot
+    for key in ("wheel_radius", "track", "footprint_radius", "wheel_speed_max", "v_max", "a_max", "alpha_max"):
+        low, high, _, _ = ROBOT_RANGES[key]
+        assert low <= getattr(r, key) <= high
+
+
+# ------------------------------------------------------------------------- <option timestep>
+
+
+@pytest.mark.parametrize("value", ["0", "nan", "-0.002", "inf"])
+def test_timestep_must_be_positive_and_finite(write_scenario, value):
+    path = write_scenario(extra=f'<option timestep="{value}"/>')
+    msg = _error(path)
+    assert str(path) in msg and "<option timestep>" in msg and "> 0" in msg
+
+
+@pytest.mark.parametrize("value, ok", [("1e-7", False), ("5e-5", False), ("1e-4", True), ("0.002", True),
+                                       ("0.01", True), ("0.011", False), ("0.05", False), ("0.2", False)])
+def test_timestep_against_the_control_period(write_scenario, value, ok):
+    from sanav_mj.scene import check_timestep
+
+    sc = load_scenario(write_scenario(extra=f'<option timestep="{value}"/>'))
+    if ok:
+        assert check_timestep(sc, 0.1) == round(0.1 / float(value))
+    else:
+        with pytest.raises(ScenarioError, match=r"<option timestep>: expected a finite number in \[0.0001, 0.01\] s"):
+            check_timestep(sc, 0.1)
+
+
+def test_run_refuses_a_tiny_timestep_before_running(write_scenario, tmp_path):
+    from sanav_mj.eval.episode import run_scenario
+
+    out = tmp_path / "r.rrd"
+    path = write_scenario(extra='<option timestep="1e-7"/>')
+    with pytest.raises(ScenarioError, match="1e-07 s"):
+        run_scenario(path, rrd=out)
+    assert not out.exists()
+
+
+# ------------------------------------------------------------------ MuJoCo's own warnings
+
+
+def test_mujoco_warnings_stay_off_stderr_and_leave_no_log_file(write_scenario, tmp_path):
+    """The CLI in a subprocess: exactly one line on stderr, exit 2, no MUJOCO_LOG.TXT in the folder."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    path = write_scenario(floor='<geom name="floor" type="plane" pos="4 0 0" size="nan 4 0.1"/>')
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    proc = subprocess.run([sys.executable, "-m", "sanav_mj.cli", "areas", str(path)], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1 and str(path) in lines[0] and "WARNING" not in proc.stderr, proc.stderr
+    assert proc.stdout == ""
+    assert list(cwd.iterdir()) == []
+
+
+def test_mujoco_warnings_are_captured(write_scenario):
+    from sanav_mj.scene import mujoco_warnings
+
+    _error(write_scenario(floor='<geom name="floor" type="plane" pos="4 0 0" size="nan 4 0.1"/>'))
+    assert any("NaN" in w for w in mujoco_warnings())

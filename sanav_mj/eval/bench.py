@@ -32,7 +32,7 @@ import platform
 import subprocess
 import sys
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -46,6 +46,7 @@ from sanav_mj.eval.campaign import (
     read_journal,
     run_jobs,
 )
+from sanav_mj.outputs import OutputFailures, StreamedFile, write_text
 
 CSV_COLUMNS = (
     "scenario", "controller", "seed", "success", "reason", "steps", "sim_time_s", "path_length_m",
@@ -79,6 +80,78 @@ def flatten(doc: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
+class RunningSum:
+    """A sum of floats added one at a time that equals the builtin :func:`sum` over the same
+    values in the same order, bit for bit (Python >= 3.12 sums floats with Neumaier's
+    compensation, earlier versions left to right): so the streamed summaries of a campaign
+    are the figures the former all-rows-in-memory code printed."""
+
+    __slots__ = ("total", "comp", "count")
+    _COMPENSATED = sys.version_info >= (3, 12)
+
+    def __init__(self) -> None:
+        self.total = 0.0
+        self.comp = 0.0
+        self.count = 0
+
+    def add(self, x: float) -> None:
+        x = float(x)
+        if self.count == 0:
+            self.total = 0 + x  # sum() starts from the integer 0
+        elif self._COMPENSATED:
+            t = self.total + x
+            if abs(self.total) >= abs(x):
+                self.comp += (self.total - t) + x
+            else:
+                self.comp += (x - t) + self.total
+            self.total = t
+        else:
+            self.total += x
+        self.count += 1
+
+    @property
+    def value(self) -> float:
+        """The sum (0 when nothing was added)."""
+        if self.count == 0:
+            return 0
+        if self._COMPENSATED and self.comp and math.isfinite(self.comp):
+            return self.total + self.comp
+        return self.total
+
+
+class PooledTiming:
+    """:func:`pooled` fed one row at a time: memory independent of the number of rows."""
+
+    __slots__ = ("prefix", "n", "mean_sum", "second_sum", "max")
+
+    def __init__(self, prefix: str) -> None:
+        self.prefix = prefix
+        self.n = 0
+        self.mean_sum = RunningSum()
+        self.second_sum = RunningSum()
+        self.max: float | None = None
+
+    def add(self, row: dict[str, Any]) -> None:
+        """Take one CSV row (:func:`flatten`); rows of runs that raised or without steps are left out."""
+        if is_error(row) or int(row["steps"]) <= 0:
+            return
+        steps = int(row["steps"])
+        mean, std, mx = row[f"{self.prefix}_mean_ms"], row[f"{self.prefix}_std_ms"], row[f"{self.prefix}_max_ms"]
+        self.n += steps
+        self.mean_sum.add(mean * steps)
+        self.second_sum.add((std**2 + mean**2) * steps)
+        if self.max is None or mx > self.max:
+            self.max = mx
+
+    def result(self) -> tuple[float, float, float]:
+        """Mean, max and (population) std [ms]; all zeros without samples."""
+        if self.n == 0:
+            return 0.0, 0.0, 0.0
+        mean = self.mean_sum.value / self.n
+        second = self.second_sum.value / self.n
+        return mean, self.max, math.sqrt(max(second - mean**2, 0.0))
+
+
 def pooled(rows: Sequence[dict[str, Any]], prefix: str) -> tuple[float, float, float]:
     """Mean, max and (population) std [ms] over all steps of all runs.
 
@@ -86,19 +159,80 @@ def pooled(rows: Sequence[dict[str, Any]], prefix: str) -> tuple[float, float, f
     :func:`sanav_mj.eval.metrics.timing_stats`), ``{prefix}_max_ms`` and ``steps`` (the
     number of samples): the pooled second moment is the step-weighted mean of
     ``std^2 + mean^2``. Runs without steps carry no samples and are left out (all zeros
-    when no run has one), and so are the rows of runs that raised.
+    when no run has one), and so are the rows of runs that raised. Streamed by
+    :class:`PooledTiming`.
     """
-    rows = [r for r in rows if not is_error(r) and int(r["steps"]) > 0]
-    n = sum(int(r["steps"]) for r in rows)
-    if n == 0:
-        return 0.0, 0.0, 0.0
-    mean = sum(r[f"{prefix}_mean_ms"] * int(r["steps"]) for r in rows) / n
-    second = sum((r[f"{prefix}_std_ms"] ** 2 + r[f"{prefix}_mean_ms"] ** 2) * int(r["steps"]) for r in rows) / n
-    return mean, max(r[f"{prefix}_max_ms"] for r in rows), math.sqrt(max(second - mean**2, 0.0))
+    acc = PooledTiming(prefix)
+    for r in rows:
+        acc.add(r)
+    return acc.result()
+
+
+class _PairSummary:
+    """The running aggregates of one (scenario, controller) pair of :class:`BenchSummary`."""
+
+    __slots__ = ("all", "runs", "solve", "pipeline", "ok", "ok_steps", "collided", "reasons")
+
+    def __init__(self) -> None:
+        self.all = 0
+        self.runs = 0
+        self.solve = PooledTiming("solve")
+        self.pipeline = PooledTiming("pipeline")
+        self.ok = 0
+        self.ok_steps = 0
+        self.collided = 0
+        self.reasons: dict[str, int] = {}
+
+
+class BenchSummary:
+    """:func:`summarise` fed one CSV row at a time (:meth:`add`), for a campaign streamed row
+    by row: it holds a handful of counters, sums and maxima per (scenario, controller), not
+    the rows. Every figure is exact (counts, integer sums, maxima, and float sums that equal
+    :func:`sum`'s, :class:`RunningSum`); no median or percentile is computed across runs."""
+
+    def __init__(self) -> None:
+        self._pairs: dict[tuple[str, str], _PairSummary] = {}
+
+    def add(self, row: dict[str, Any]) -> None:
+        """Take one row (:func:`flatten`)."""
+        p = self._pairs.setdefault((row["scenario"], row["controller"]), _PairSummary())
+        p.all += 1
+        if is_error(row):
+            return
+        p.runs += 1
+        p.solve.add(row)
+        p.pipeline.add(row)
+        if row["success"]:
+            p.ok += 1
+            p.ok_steps += row["steps"]
+        p.collided += int(row["collisions"]) > 0
+        p.reasons[row["reason"]] = p.reasons.get(row["reason"], 0) + 1
+
+    def rows(self) -> list[dict[str, Any]]:
+        """The summary rows, as :func:`summarise` describes them."""
+        out = []
+        for (scenario, controller), p in self._pairs.items():
+            sm, sx, ss = p.solve.result()
+            pm, px, ps = p.pipeline.result()
+            n = p.runs
+            out.append({
+                "scenario": scenario,
+                "controller": controller,
+                "runs": n,
+                "solve_mean_ms": sm, "solve_max_ms": sx, "solve_std_ms": ss,
+                "pipeline_mean_ms": pm, "pipeline_max_ms": px, "pipeline_std_ms": ps,
+                "steps": (p.ok_steps / p.ok) if p.ok else None,
+                "success_rate": 100.0 * p.ok / n if n else None,
+                "collision_runs": p.collided,
+                "collision_rate": 100.0 * p.collided / n if n else None,
+                "reasons": ", ".join(f"{k} {v}" for k, v in sorted(p.reasons.items())),
+                "errors": p.all - n,
+            })
+        return out
 
 
 def summarise(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per (scenario, controller) summary rows, in first-seen order.
+    """Per (scenario, controller) summary rows, in first-seen order (:class:`BenchSummary`).
 
     Keys: ``scenario``, ``controller``, ``runs``; ``solve_{mean,max,std}_ms`` and
     ``pipeline_{mean,max,std}_ms`` [ms] pooled over all steps (:func:`pooled`); ``steps``
@@ -109,37 +243,10 @@ def summarise(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     they are not in ``runs``, the rates, the timing or ``reasons`` (the rates are None when
     every run of the pair raised).
     """
-    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    acc = BenchSummary()
     for r in rows:
-        groups.setdefault((r["scenario"], r["controller"]), []).append(r)
-    out = []
-    for (scenario, controller), all_rows in groups.items():
-        rs = [r for r in all_rows if not is_error(r)]
-        sm, sx, ss = pooled(rs, "solve")
-        pm, px, ps = pooled(rs, "pipeline")
-        ok = [r for r in rs if r["success"]]
-        collided = sum(int(r["collisions"]) > 0 for r in rs)
-        out.append({
-            "scenario": scenario,
-            "controller": controller,
-            "runs": len(rs),
-            "solve_mean_ms": sm, "solve_max_ms": sx, "solve_std_ms": ss,
-            "pipeline_mean_ms": pm, "pipeline_max_ms": px, "pipeline_std_ms": ps,
-            "steps": (sum(r["steps"] for r in ok) / len(ok)) if ok else None,
-            "success_rate": 100.0 * len(ok) / len(rs) if rs else None,
-            "collision_runs": collided,
-            "collision_rate": 100.0 * collided / len(rs) if rs else None,
-            "reasons": _reasons(rs),
-            "errors": len(all_rows) - len(rs),
-        })
-    return out
-
-
-def _reasons(rows: list[dict[str, Any]]) -> str:
-    counts: dict[str, int] = {}
-    for r in rows:
-        counts[r["reason"]] = counts.get(r["reason"], 0) + 1
-    return ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+        acc.add(r)
+    return acc.rows()
 
 
 #: Header cells of :func:`markdown_table`.
@@ -177,13 +284,38 @@ def markdown_table(summary: Sequence[dict[str, Any]]) -> str:
 
 
 def write_csv(rows: list[dict[str, Any]], path: Path, columns: tuple[str, ...] = CSV_COLUMNS) -> None:
-    """Write result rows (dicts) to CSV with the given leading columns (extra keys appended)."""
+    """Write result rows (dicts) to CSV with the given leading columns (extra keys appended),
+    whole or not at all (:mod:`sanav_mj.outputs`)."""
     extra = sorted({k for r in rows for k in r} - set(columns))
-    with open(path, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=[*columns, *extra], extrasaction="ignore")
-        w.writeheader()
+    out = CsvStream(path, (*columns, *extra))
+    try:
         for r in rows:
-            w.writerow(r)
+            out.add(r)
+    except BaseException:
+        out.discard()
+        raise
+    out.commit()
+
+
+class CsvStream:
+    """A CSV output written row by row as a campaign's rows arrive, put in place whole at
+    the end (:class:`sanav_mj.outputs.StreamedFile`): ``add(row)`` writes one row (keys
+    not in ``columns`` are ignored), ``commit()`` renames the finished file onto ``path``
+    (raising the first write error, naming ``path``), ``discard()`` drops it."""
+
+    def __init__(self, path: Path, columns: Sequence[str]) -> None:
+        self._file = StreamedFile(path)
+        self._writer = csv.DictWriter(self._file, fieldnames=list(columns), extrasaction="ignore")
+        self._writer.writeheader()
+
+    def add(self, row: dict[str, Any]) -> None:
+        self._writer.writerow(row)
+
+    def commit(self) -> Path:
+        return self._file.commit()
+
+    def discard(self) -> None:
+        self._file.discard()
 
 
 def _load_average() -> list[float] | None:
@@ -288,7 +420,23 @@ def begin_campaign(out: Path, meta: dict[str, Any], resume: bool) -> None:
         meta["earlier_sessions"] = list(previous.get("earlier_sessions", [])) + [
             {k: previous.get(k) for k in ("commit", "dirty", "dirty_files", "date_utc", "wall_time_s")}]
     meta["wall_time_s"] = None
-    path.write_text(json.dumps(meta, indent=1))
+    write_text(path, json.dumps(meta, indent=1))
+
+
+def stream_campaign(jobs: JobSet, workers: int, desc: str, out: Path, resume: bool, executor: Any,
+                    per_run: CsvStream, take: Callable[[dict[str, Any]], None]) -> None:
+    """Run ``jobs`` (:func:`sanav_mj.eval.campaign.run_jobs` on ``workers`` processes or
+    ``executor``, journalled in ``out/runs.jsonl``, continued from it with ``resume``; ``desc``
+    labels the progress bar), handing each row to ``take`` in job order as it arrives; no row
+    is kept. ``take`` writes the row to ``per_run`` (and to running summaries); if the campaign
+    stops (an exception, Ctrl-C) ``per_run``'s temporary file is dropped and the exception goes on."""
+    try:
+        for doc in run_jobs(jobs, workers, desc=desc, journal=out / JOURNAL_NAME, resume=resume,
+                            executor=executor, on_row=take):
+            take(doc)  # none: run_jobs hands every row to take
+    except BaseException:
+        per_run.discard()
+        raise
 
 
 def run_bench(
@@ -335,6 +483,13 @@ def run_bench(
         sanav_mj.eval.campaign.JournalError: ``resume`` into a folder run with other settings.
         sanav_mj.eval.campaign.CampaignInterrupted: Ctrl-C; finished runs are in the journal.
         sanav_mj.eval.ray_runner.ClusterError: ``ray`` given but Ray is missing or unreachable.
+        OSError: an output could not be written (``filename`` the first such file; ``meta.json``
+            before the runs stops the campaign, one at the end is raised after every other
+            output was written). Each output is written whole or not at all.
+
+    Memory does not grow with the campaign: rows are streamed to ``results.csv`` and to
+    running aggregates (:class:`BenchSummary`) in job order (see ``on_row`` in
+    :func:`sanav_mj.eval.campaign.run_jobs`).
     """
     from sanav_mj.eval.plots import plot_success_bars
     from sanav_mj.resources import builtin_scenarios
@@ -352,7 +507,8 @@ def run_bench(
             rrd=str(out / "rrd" / f"{Path(s).stem}_{c}_{k}.rrd") if record else None, sensing=sensing,
         )
         for s in names for c in controllers for k in range(runs)
-    ), len(names) * len(controllers) * runs)
+    ), len(names) * len(controllers) * runs,
+        distinct=len(set(names)) == len(names) and len(set(controllers)) == len(controllers))
     with campaign_executor(ray) as executor:
         meta = {"command": "bench", **run_metadata(names, controllers, runs, workers, time_limit_s)}
         if sensing != "map":
@@ -360,18 +516,29 @@ def run_bench(
         meta["executor"] = describe(ray)
         begin_campaign(out, meta, resume)
         t0 = time.perf_counter()
-        rows = [flatten(d) for d in run_jobs(jobs, workers, desc="bench", journal=out / JOURNAL_NAME, resume=resume,
-                                             executor=executor)]
+        # streamed: each row goes to results.csv (a temporary file until the end) and the
+        # running summary as it arrives, in the order of the jobs; no row is kept
+        results = CsvStream(out / "results.csv", CSV_COLUMNS)
+        acc = BenchSummary()
+
+        def take(doc: dict[str, Any]) -> None:
+            row = flatten(doc)
+            results.add(row)
+            acc.add(row)
+
+        stream_campaign(jobs, workers, "bench", out, resume, executor, results, take)
     meta["wall_time_s"] = time.perf_counter() - t0
     meta["load_average_end"] = _load_average()
-    write_csv(rows, out / "results.csv")
-    (out / "meta.json").write_text(json.dumps(meta, indent=1))
-    summary = summarise(rows)
-    (out / "table.md").write_text(markdown_table(summary))
+    failures = OutputFailures()  # every output whole or not at all; one failing does not stop the others
+    failures.attempt(out / "results.csv", results.commit)
+    failures.attempt(out / "meta.json", lambda: write_text(out / "meta.json", json.dumps(meta, indent=1)))
+    summary = acc.rows()
+    failures.attempt(out / "table.md", lambda: write_text(out / "table.md", markdown_table(summary)))
     rated = [{"scenario": s["scenario"], "controller": s["controller"], "success_rate": s["success_rate"]}
              for s in summary if s["success_rate"] is not None]
     if rated:  # pairs whose every run raised leave a gap
-        plot_success_bars(rated, out / "success.png")
+        failures.attempt(out / "success.png", lambda: plot_success_bars(rated, out / "success.png"))
     else:  # no rate at all: no figure (and none left from an earlier campaign)
         (out / "success.png").unlink(missing_ok=True)
+    failures.check()
     return summary

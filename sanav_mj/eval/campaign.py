@@ -54,6 +54,9 @@ from tqdm import tqdm
 ERROR_REASON = "error"
 #: file name of the journal inside a campaign's output folder
 JOURNAL_NAME = "runs.jsonl"
+#: with ``on_row``, :func:`run_jobs` holds at most this many x the executor's slots of rows
+#: finished ahead of an earlier, slower job (then waits for it before starting more jobs)
+REORDER_WINDOW = 32
 
 
 @dataclass(frozen=True)
@@ -548,6 +551,7 @@ def run_jobs(
     runner: Callable[[Job], dict[str, Any]] | None = None,
     total: int | None = None,
     executor: Executor | None = None,
+    on_row: Callable[[dict[str, Any]], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Run ``jobs`` on ``workers`` processes (1: in this process), with a tqdm progress bar.
 
@@ -573,10 +577,16 @@ def run_jobs(
             (default ``len(jobs)`` when it has one).
         executor: where the jobs run (e.g. :class:`sanav_mj.eval.ray_runner.RayExecutor`);
             None: a process pool of ``workers`` (or this process).
+        on_row: called with each row, in the order of ``jobs``, as soon as it and every
+            row before it are finished; the rows are then not kept (a campaign's memory
+            does not grow with its size) and none is returned. Rows finished ahead of an
+            earlier one wait for it, at most :data:`REORDER_WINDOW` x the executor's slots:
+            no job further ahead is started until the earlier one finishes.
 
     Returns:
-        One row per job, in the order of ``jobs``: the run JSON without trace plus the tags,
-        or an :func:`error_row` when the run raised. Rows have been through a JSON round trip.
+        One row per job, in the order of ``jobs`` (none with ``on_row``): the run JSON
+        without trace plus the tags, or an :func:`error_row` when the run raised. Rows have
+        been through a JSON round trip.
 
     Raises:
         JournalError: with ``resume``, the journal cannot be read, holds a bad row (message
@@ -597,14 +607,28 @@ def run_jobs(
         done = {k: r for k, r in done.items() if not is_error(r)}
     writer = _Journal(journal, done) if journal is not None else None
     saved = len(done)
-    rows: list[dict[str, Any] | None] = []
-    seen: set[str] = set()
+    rows: list[dict[str, Any]] = []
+    emit = rows.append if on_row is None else on_row
+    ahead: dict[int, dict[str, Any]] = {}  # rows finished before an earlier one, by job index
+    emitted = 0  # jobs whose row went to ``emit``
+    taken = 0  # jobs taken from ``jobs``
+    # the duplicate-key check keeps every key; a JobSet whose keys are distinct by
+    # construction skips it (its memory would grow with the campaign)
+    seen: set[str] | None = None if getattr(jobs, "distinct", False) else set()
     bar = tqdm(total=total, desc=desc, unit="run", dynamic_ncols=True)
     owned = executor is None
     if executor is None:
         executor = _InProcess(runner) if workers <= 1 else _Pool(runner, workers)
     in_flight: dict[Any, tuple[int, str]] = {}
     source = iter(jobs)
+    window = REORDER_WINDOW * max(int(executor.slots), 1)
+
+    def deliver(i: int, row: dict[str, Any]) -> None:
+        nonlocal emitted
+        ahead[i] = row
+        while emitted in ahead:
+            emit(ahead.pop(emitted))
+            emitted += 1
 
     def finish(i: int, key: str, row: dict[str, Any]) -> None:
         nonlocal saved
@@ -612,29 +636,32 @@ def run_jobs(
         if writer is not None:
             writer.append(key, row)
             saved += 1
-        rows[i] = row
         bar.update()
+        deliver(i, row)
 
     try:
         try:
             exhausted = False
             while True:
-                while not exhausted and len(in_flight) < executor.slots:
+                while not exhausted and len(in_flight) < executor.slots and taken - emitted < window:
                     job = next(source, None)
                     if job is None:
                         exhausted = True
                         break
                     key = job_key(job)
-                    if journal is not None:
+                    if journal is not None and seen is not None:
                         if key in seen:
                             raise JournalError(f"jobs: two jobs with the same scenario, controller, seed, mismatch "
                                                f"and time limit ({key})")
                         seen.add(key)
-                    rows.append(done.pop(key, None))
-                    if rows[-1] is not None:
+                    i = taken
+                    taken += 1
+                    kept = done.pop(key, None)
+                    if kept is not None:
                         bar.update()
+                        deliver(i, kept)
                         continue
-                    in_flight[executor.submit(job)] = (len(rows) - 1, key)
+                    in_flight[executor.submit(job)] = (i, key)
                 if not in_flight:
                     break
                 for handle, row in executor.wait(list(in_flight)):
@@ -647,22 +674,24 @@ def run_jobs(
         if owned:
             executor.close()
     except KeyboardInterrupt:
-        raise CampaignInterrupted(saved if writer is not None else 0, total if total is not None else len(rows),
+        raise CampaignInterrupted(saved if writer is not None else 0, total if total is not None else taken,
                                   journal) from None
     finally:
         bar.close()
         if writer is not None:
             writer.close()
-    return [r for r in rows if r is not None]
+    return rows
 
 
 @dataclass(frozen=True)
 class JobSet:
     """A re-iterable, lazily generated campaign: ``make()`` yields the jobs afresh on each
-    iteration, ``size`` is their number (``len``)."""
+    iteration, ``size`` is their number (``len``); ``distinct``: the maker guarantees that no
+    two jobs share a :func:`job_key`, so :func:`run_jobs` does not keep every key to check it."""
 
     make: Callable[[], Iterator[Job]]
     size: int
+    distinct: bool = False
 
     def __iter__(self) -> Iterator[Job]:
         return iter(self.make())

@@ -20,7 +20,7 @@ from sanav_mj.mapping.occupancy import OccupancyGrid
 from sanav_mj.mapping.quadtree import QuadtreeLeaves
 from sanav_mj.mapping.safe_areas import SafeAreaMap, SafeAreas
 from sanav_mj.planning.reference import Plan
-from sanav_mj.scene import Scenario, load_scenario
+from sanav_mj.scene import Scenario, check_timestep, load_scenario
 from sanav_mj.sim.mismatch import Mismatch
 from sanav_mj.sim.runner import Episode, RunConfig
 
@@ -122,12 +122,15 @@ def prepare(
         start: (3,) [m, m, rad] start pose to plan from (default: the scenario's).
         controller: the controller spec the planner is matched to (:func:`planner_config`).
     """
-    from sanav_mj.mapping import MapConfig, build_map
+    from sanav_mj.mapping import MapConfig, MapMemoryError, build_map
     from sanav_mj.planning import plan as make_plan
 
     scenario = spec if isinstance(spec, Scenario) else load_scenario(spec)
     inflation = scenario.robot.footprint_radius + DEFAULT_MARGIN_M
-    m = build_map(scenario.obstacles, scenario.bounds, inflation, MapConfig(resolution=resolution, merge=merge))
+    try:
+        m = build_map(scenario.obstacles, scenario.bounds, inflation, MapConfig(resolution=resolution, merge=merge))
+    except MapMemoryError as err:  # name the file too (ScenarioError: exit 2)
+        raise MapMemoryError(f"{scenario.path}: {err}") from None
     t0 = time.perf_counter()
     pose = scenario.start if start is None else np.asarray(start, dtype=float)
     plan = make_plan(m.areas, pose, scenario.goal, scenario.robot, planner_config(scenario.robot, controller))
@@ -138,7 +141,7 @@ def prepare(
 
 
 def areas_document(prep: Prepared) -> dict[str, Any]:
-    """The ``areas --json`` document of the design contract."""
+    """The ``areas --json`` document (keys, types and units: docs/outputs.md)."""
     from sanav_mj.planning import plan_document
 
     plan = plan_document(prep.plan)
@@ -242,6 +245,9 @@ def run_scenario(
         scenario = source if isinstance(source, Scenario) else load_scenario(source)
         prep0 = None
     start = initial_pose(scenario, seed, yaw)
+    # <option timestep> against the control period, before any output is created (ScenarioError, exit 2).
+    # The period: the injected controller's dt, else the built controllers' (the reference step).
+    check_timestep(scenario, getattr(controller_obj, "dt", None) or planner_config(scenario.robot).dt)
     t0 = time.perf_counter()
     # The plan starts from the actual start pose; the map does not depend on it.
     prep = prepare(scenario, resolution=prep0.grid.resolution if prep0 else resolution, start=start,

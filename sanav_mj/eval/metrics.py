@@ -1,4 +1,4 @@
-"""Episode metrics and the ``run --json`` document of the design contract."""
+"""Episode metrics and the ``run --json`` document (field by field in docs/outputs.md)."""
 
 from __future__ import annotations
 
@@ -61,7 +61,7 @@ def episode_json(
     mismatch: dict[str, float],
     setup_ms: float = 0.0,
 ) -> dict[str, Any]:
-    """The ``run --json`` document (DESIGN.md) of one episode.
+    """The ``run --json`` document of one episode (keys, types and units: docs/outputs.md).
 
     Args:
         episode: the finished episode.

@@ -21,7 +21,6 @@ the ``error`` column; each grid point counts those in ``errors`` and leaves them
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import time
@@ -33,16 +32,17 @@ import numpy as np
 
 from sanav_mj.eval.bench import (
     CSV_COLUMNS,
+    CsvStream,
     _load_average,
     begin_campaign,
     campaign_executor,
     describe,
     flatten,
     run_metadata,
-    write_csv,
+    stream_campaign,
 )
-from sanav_mj.eval.campaign import JOURNAL_NAME, Job, JobSet, is_error, run_jobs
-from sanav_mj.outputs import atomic_path, write_text
+from sanav_mj.eval.campaign import Job, JobSet, is_error
+from sanav_mj.outputs import OutputFailures, write_text
 from sanav_mj.sim.mismatch import Mismatch, MismatchError, mismatch_keys
 
 
@@ -115,51 +115,100 @@ def _file_part(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in name) or "scenario"
 
 
-def _aggregate(rows: list[dict[str, Any]], xk: str, xv: list, yk: str, yv: list, scenario: str | None,
-               names: dict[str, str]) -> list[tuple[dict[str, Any], tuple[int, int]]]:
-    """Summary rows of the grid points (``scenario`` None: pooled over all scenarios), each with its cell."""
-    cells: dict[tuple[int, int], list[dict[str, Any]]] = {}
-    for r in rows:
-        if scenario is not None and names.get(r["scenario"], r["scenario"]) != scenario:
-            continue
-        cells.setdefault(tuple(r["_cell"]), []).append(r)
-    out = []
-    for yi, y in enumerate(yv):
-        for xi, x in enumerate(xv):
-            cell = cells.get((yi, xi), [])
-            ran = [r for r in cell if not is_error(r)]
-            n = len(ran)
-            reasons: dict[str, int] = {}
-            for r in ran:
-                reasons[r["reason"]] = reasons.get(r["reason"], 0) + 1
-            clear = [r["min_clearance_m"] for r in ran if r.get("min_clearance_m") is not None]
-            row: dict[str, Any] = {"scenario": POOLED if scenario is None else scenario, xk: x}
-            if yk:
-                row[yk] = y
-            row.update(
-                runs=n, errors=len(cell) - n,
-                success_rate=100.0 * sum(bool(r["success"]) for r in ran) / n if n else math.nan,
-                collision_rate=100.0 * sum(r["collisions"] > 0 for r in ran) / n if n else math.nan,
-                # no run with a clearance (none ran, or none moved: no path): no value, not inf
-                min_clearance_m=float(min(clear)) if clear else math.nan,
-                reasons=", ".join(f"{k} {v}" for k, v in sorted(reasons.items())),
-            )
-            out.append((row, (yi, xi)))
-    return out
+class CellSummary:
+    """Running aggregates of some runs (one grid point of one scenario, or pooled), fed one
+    row at a time (:meth:`add`): ``all`` rows, ``ran`` (to an outcome: not an error row),
+    ``success`` and ``collided`` (runs with a collision) among those, the smallest
+    ``clearance`` [m] (None: no run has one) and the outcome counts ``reasons``
+    ({reason: runs}). Exact: nothing is sampled or estimated."""
+
+    __slots__ = ("all", "ran", "success", "collided", "clearance", "reasons")
+
+    def __init__(self) -> None:
+        self.all = 0
+        self.ran = 0
+        self.success = 0
+        self.collided = 0
+        self.clearance: float | None = None
+        self.reasons: dict[str, int] = {}
+
+    def add(self, r: dict[str, Any]) -> None:
+        """Take one run row: ``reason``, and unless it is an error row (:func:`is_error`)
+        ``success`` (bool), ``collisions`` (int) and ``min_clearance_m`` ([m] or None)."""
+        self.all += 1
+        if is_error(r):
+            return
+        self.ran += 1
+        self.success += bool(r["success"])
+        self.collided += r["collisions"] > 0
+        c = r.get("min_clearance_m")
+        if c is not None and (self.clearance is None or c < self.clearance):
+            self.clearance = c
+        self.reasons[r["reason"]] = self.reasons.get(r["reason"], 0) + 1
+
+    def summary(self) -> dict[str, Any]:
+        """``runs`` (that ran to an outcome), ``errors`` (rows of runs that raised),
+        ``success_rate`` and ``collision_rate`` [%] of the runs (NaN without one),
+        ``min_clearance_m`` [m] (NaN when no run has one, never inf) and ``reasons``
+        ("goal 3, stuck 1": the outcome counts by reason)."""
+        n = self.ran
+        return dict(
+            runs=n, errors=self.all - n,
+            success_rate=100.0 * self.success / n if n else math.nan,
+            collision_rate=100.0 * self.collided / n if n else math.nan,
+            # no run with a clearance (none ran, or none moved: no path): no value, not inf
+            min_clearance_m=float(self.clearance) if self.clearance is not None else math.nan,
+            reasons=", ".join(f"{k} {v}" for k, v in sorted(self.reasons.items())),
+        )
+
+
+class SweepSummary:
+    """The summaries of a sweep fed one row at a time (:meth:`add`): per grid point, pooled
+    over the scenarios and per scenario, a few counters, the smallest clearance and the
+    outcome counts; memory grows with the grid and the scenarios, not with the seeds."""
+
+    def __init__(self, names: dict[str, str]) -> None:
+        self._names = names
+        self._cells: dict[tuple[str | None, tuple[int, int]], CellSummary] = {}
+
+    def add(self, row: dict[str, Any], cell: tuple[int, int]) -> None:
+        """Take one row (:func:`sanav_mj.eval.bench.flatten` of a run) of grid point ``cell`` = (yi, xi)."""
+        cell = (int(cell[0]), int(cell[1]))
+        scenario = self._names.get(row["scenario"], row["scenario"])
+        for group in (None, scenario):
+            acc = self._cells.get((group, cell))
+            if acc is None:
+                acc = self._cells[(group, cell)] = CellSummary()
+            acc.add(row)
+
+    def cells(self, xk: str, xv: list, yk: str, yv: list,
+              scenario: str | None) -> list[tuple[dict[str, Any], tuple[int, int]]]:
+        """Summary rows of the grid points (``scenario`` None: pooled over all scenarios), each with its cell."""
+        out = []
+        for yi, y in enumerate(yv):
+            for xi, x in enumerate(xv):
+                acc = self._cells.get((scenario, (yi, xi))) or CellSummary()
+                row: dict[str, Any] = {"scenario": POOLED if scenario is None else scenario, xk: x}
+                if yk:
+                    row[yk] = y
+                row.update(acc.summary())
+                out.append((row, (yi, xi)))
+        return out
 
 
 def _write_summary(cells: list[tuple[dict[str, Any], tuple[int, int]]], path: Path) -> None:
     """Summary CSV; a quantity with no value (NaN: no run of the point ran, or none has a
     clearance) is an empty field."""
     rows = [{k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()} for row, _ in cells]
-    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    out = CsvStream(path, list(rows[0]))
+    for row in rows:
+        out.add(row)
+    out.commit()
 
 
 def _heat_maps(cells: list[tuple[dict[str, Any], tuple[int, int]]], label: str, folder: Path, prefix: str, *,
-               xk: str, xv: list, yk: str, yv: list, controller: str, base_items: tuple[str, ...]) -> None:
+               xk: str, xv: list, yk: str, yv: list, controller: str, base_items: tuple[str, ...],
+               failures: OutputFailures) -> None:
     """``success_rate``, ``collision_rate`` and ``min_clearance`` heat maps of ``cells``, titled with ``label``."""
     from sanav_mj.eval.plots import plot_heatmap
 
@@ -174,8 +223,9 @@ def _heat_maps(cells: list[tuple[dict[str, Any], tuple[int, int]]], label: str, 
     for key, name, what in (("success_rate", "success_rate", "success rate [%]"),
                             ("collision_rate", "collision_rate", "collision rate [%]"),
                             ("min_clearance_m", "min_clearance", "min clearance [m]")):
-        plot_heatmap(grids[key], xk, xlabels, yk, ylabels, f"{label} / {controller}: {what}{note}",
-                     folder / f"{prefix}{name}.png")
+        path = folder / f"{prefix}{name}.png"
+        failures.attempt(path, lambda: plot_heatmap(grids[key], xk, xlabels, yk, ylabels,
+                                                    f"{label} / {controller}: {what}{note}", path))
 
 
 def run_robustness(
@@ -231,6 +281,12 @@ def run_robustness(
         MismatchError: ``fixed`` sets a swept key.
         sanav_mj.eval.campaign.JournalError: ``resume`` into a folder run with other settings.
         sanav_mj.eval.campaign.CampaignInterrupted: Ctrl-C; finished runs are in the journal.
+        OSError: an output could not be written (``filename`` the first such file), raised
+            after every other output was written; ``meta.json`` before the runs stops the
+            campaign. Each output is written whole or not at all.
+
+    Memory does not grow with the number of runs: rows are streamed to ``robustness.csv``
+    and to running aggregates per grid point (:class:`SweepSummary`) in job order.
     """
     names = _scenario_names(scenarios)  # loads each (ScenarioError on a bad one) before any output
     base = fixed.changed()
@@ -250,7 +306,14 @@ def run_robustness(
                     for k in range(seeds):
                         yield Job(s, controller, k, items, time_limit_s, None, tags, sensing)
 
-    jobs = JobSet(make_jobs, len(yv) * len(xv) * len(scenarios) * seeds)
+    n_jobs = len(yv) * len(xv) * len(scenarios) * seeds
+    # keys are distinct by construction when the scenarios and each key's values are
+    unique = (len(set(scenarios)) == len(scenarios)
+              and all(len({_fmt(k, v) for v in vals}) == len(vals) for k, vals in sweep))
+    jobs = JobSet(make_jobs, n_jobs, distinct=unique)
+    # the CSV's columns: the swept keys, the run columns, then the extra key of the rows
+    # (``mismatch``; :func:`sanav_mj.eval.bench.write_csv` would append it as the one key it does not know)
+    columns = (xk,) + ((yk,) if yk else ()) + CSV_COLUMNS + (("mismatch",) if n_jobs else ())
     with campaign_executor(ray) as executor:
         meta = {"command": "robustness", **run_metadata(scenarios, [controller], seeds, workers, time_limit_s)}
         if sensing != "map":
@@ -260,36 +323,40 @@ def run_robustness(
         meta["executor"] = describe(ray)
         begin_campaign(out, meta, resume)
         t0 = time.perf_counter()
-        docs = run_jobs(jobs, workers, desc="robustness", journal=out / JOURNAL_NAME, resume=resume,
-                        executor=executor)
+        # streamed: each row goes to robustness.csv (a temporary file until the end) and the
+        # running summaries as it arrives, in the order of the jobs; no row is kept
+        per_run = CsvStream(out / "robustness.csv", columns)
+        acc = SweepSummary(names)
+
+        def take(d: dict[str, Any]) -> None:
+            r = flatten(d)
+            r[xk] = d[xk]
+            if yk:
+                r[yk] = d[yk]
+            r["mismatch"] = " ".join(f"{k}={v}" for k, v in d.get("mismatch", {}).items())
+            per_run.add(r)
+            acc.add(r, tuple(d["_cell"]))
+
+        stream_campaign(jobs, workers, "robustness", out, resume, executor, per_run, take)
     meta["wall_time_s"] = time.perf_counter() - t0
     meta["load_average_end"] = _load_average()
-    write_text(out / "meta.json", json.dumps(meta, indent=1))
-    rows = []
-    for d in docs:
-        r = flatten(d)
-        r[xk] = d[xk]
-        if yk:
-            r[yk] = d[yk]
-        r["_cell"] = d["_cell"]
-        r["mismatch"] = " ".join(f"{k}={v}" for k, v in d.get("mismatch", {}).items())
-        rows.append(r)
-    with atomic_path(out / "robustness.csv") as tmp:
-        write_csv([{k: v for k, v in r.items() if k != "_cell"} for r in rows], tmp,
-                  columns=(xk,) + ((yk,) if yk else ()) + CSV_COLUMNS)
+    failures = OutputFailures()  # every output whole or not at all; one failing does not stop the others
+    failures.attempt(out / "meta.json", lambda: write_text(out / "meta.json", json.dumps(meta, indent=1)))
+    failures.attempt(out / "robustness.csv", per_run.commit)
 
-    pooled = _aggregate(rows, xk, xv, yk, yv, scenario=None, names=names)
-    _write_summary(pooled, out / "summary.csv")
+    pooled = acc.cells(xk, xv, yk, yv, scenario=None)
+    failures.attempt(out / "summary.csv", lambda: _write_summary(pooled, out / "summary.csv"))
     heat = dict(xk=xk, xv=xv, yk=yk, yv=yv, controller=controller, base_items=base_items)
     distinct = list(dict.fromkeys(names[s] for s in scenarios))
-    _heat_maps(pooled, ", ".join(distinct), out, "", **heat)
+    _heat_maps(pooled, ", ".join(distinct), out, "", failures=failures, **heat)
     summary = [row for row, _ in pooled]
     if len(distinct) > 1:  # per scenario as well as pooled
         per = []
         for name in distinct:
-            cells = _aggregate(rows, xk, xv, yk, yv, scenario=name, names=names)
+            cells = acc.cells(xk, xv, yk, yv, scenario=name)
             per.extend(cells)
-            _heat_maps(cells, name, out / "per_scenario", f"{_file_part(name)}_", **heat)
-        _write_summary(per, out / "summary_by_scenario.csv")
+            _heat_maps(cells, name, out / "per_scenario", f"{_file_part(name)}_", failures=failures, **heat)
+        failures.attempt(out / "summary_by_scenario.csv", lambda: _write_summary(per, out / "summary_by_scenario.csv"))
         summary.extend(row for row, _ in per)
+    failures.check()
     return summary

@@ -5,7 +5,7 @@
 """
 
 from sanav_mj.mapping.build import MapConfig, build_map
-from sanav_mj.mapping.occupancy import OccupancyGrid, rasterise
+from sanav_mj.mapping.occupancy import MapMemoryError, OccupancyGrid, rasterise
 from sanav_mj.mapping.quadtree import QuadtreeLeaves, build_quadtree
 from sanav_mj.mapping.safe_areas import (
     MERGE_METHODS,
@@ -20,6 +20,7 @@ from sanav_mj.mapping.safe_areas import (
 __all__ = [
     "MERGE_METHODS",
     "MapConfig",
+    "MapMemoryError",
     "OccupancyGrid",
     "QuadtreeLeaves",
     "SafeAreaMap",

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from math import isfinite
 
-from sanav_mj.mapping.occupancy import rasterise
+from sanav_mj.mapping.occupancy import MEMORY_BUDGET_BYTES, rasterise
 from sanav_mj.mapping.safe_areas import MERGE_METHODS, SafeAreaMap, build_safe_areas
 from sanav_mj.scene import Obstacle
 
@@ -22,17 +22,28 @@ class MapConfig:
         resolution: [m] occupancy cell edge length, > 0 (CLI ``--resolution``).
         min_cell: [cells] quadtree minimum node size, integer >= 1.
         merge: merge method, one of :data:`~sanav_mj.mapping.safe_areas.MERGE_METHODS`.
+        memory_budget_bytes: [bytes] a grid whose estimate
+            (:func:`~sanav_mj.mapping.occupancy.map_memory_bytes`, about 1.34 bytes per cell)
+            exceeds this is refused before allocating, naming a ``--resolution`` that fits
+            (default 2 GiB: a 1 km x 1 km workspace at 0.05 m needs 0.5 GiB).
     """
 
     resolution: float = 0.05
     min_cell: int = 1
     merge: str = "paper"
+    memory_budget_bytes: int = MEMORY_BUDGET_BYTES
 
     def __post_init__(self) -> None:
         if not (isinstance(self.resolution, (int, float)) and isfinite(self.resolution) and self.resolution > 0):
             raise ValueError(f"MapConfig.resolution must be a finite number > 0 [m], got {self.resolution!r}")
         if isinstance(self.min_cell, bool) or not isinstance(self.min_cell, int) or self.min_cell < 1:
             raise ValueError(f"MapConfig.min_cell must be an integer >= 1 [cells], got {self.min_cell!r}")
+        if isinstance(self.memory_budget_bytes, bool) or not (
+            isinstance(self.memory_budget_bytes, int) and self.memory_budget_bytes > 0
+        ):
+            raise ValueError(
+                f"MapConfig.memory_budget_bytes must be an integer > 0 [bytes], got {self.memory_budget_bytes!r}"
+            )
         if self.merge not in MERGE_METHODS:
             raise ValueError(f"MapConfig.merge must be one of {MERGE_METHODS}, got {self.merge!r}")
 
@@ -49,14 +60,18 @@ def build_map(
         obstacles: static obstacles in the world frame (``Scenario.obstacles``).
         bounds: (4,) [m] workspace xmin, ymin, xmax, ymax (``Scenario.bounds``).
         inflation: [m] obstacle inflation, >= 0 (robot footprint radius + margin).
-        config: resolution, quadtree minimum cell, merge method.
+        config: resolution, quadtree minimum cell, merge method, memory budget.
+
+    Raises:
+        MapMemoryError: the grid's estimate exceeds ``config.memory_budget_bytes`` (nothing allocated).
 
     Returns:
         The safe-area map; ``timing_ms`` has keys ``rasterise``, ``quadtree``, ``merge``,
         ``graph`` and ``total`` (the sum of the four stages plus glue).
     """
     t0 = time.perf_counter()
-    grid = rasterise(obstacles, bounds, config.resolution, inflation=inflation)
+    grid = rasterise(obstacles, bounds, config.resolution, inflation=inflation,
+                     memory_budget_bytes=config.memory_budget_bytes)
     t1 = time.perf_counter()
     result = build_safe_areas(grid, config.min_cell, config.merge)
     t2 = time.perf_counter()

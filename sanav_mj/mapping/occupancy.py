@@ -26,14 +26,35 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from math import ceil, isfinite
+from math import ceil, floor, isfinite, log10, sqrt
 
 import numpy as np
 
-from sanav_mj.scene import Obstacle
+from sanav_mj.mapping.quadtree import pyramid_bytes
+from sanav_mj.scene import Obstacle, ScenarioError
 
 TOLERANCE = 1e-9
 """[m] geometric ties within this distance are resolved as occupied (conservative)."""
+
+MEMORY_BUDGET_BYTES = 2 * 1024**3
+"""[bytes] default memory budget of one map (2 GiB): a grid whose estimate
+(:func:`map_memory_bytes`) exceeds it is refused before anything is allocated."""
+
+_RUN_CHUNK = 1 << 18
+"""[cells] occupied cells written per batch (the index temporaries of one batch are
+3 int64 arrays of at most ``max(_RUN_CHUNK, nx)`` elements)."""
+
+_PAIR_CHUNK = 1 << 12
+"""(obstacle, grid row) pairs whose row intervals are computed per batch."""
+
+_PAIR_BYTES = 1024
+"""[bytes] upper bound on the temporaries per (obstacle, row) pair in :func:`_row_intervals`
+(about a dozen (8, M) float64 / bool arrays: 8 candidates x 8 bytes x 12 < 1024)."""
+
+
+class MapMemoryError(ScenarioError):
+    """The grid of a workspace at the requested resolution would exceed the memory budget."""
+
 
 _SIZE_TOL = 1e-6
 """[cells] a workspace extent within this fraction of a cell of a whole number of cells is
@@ -102,6 +123,66 @@ def grid_shape(bounds, resolution: float) -> tuple[int, int]:
     nx = max(1, ceil((b[2] - b[0]) / h - _SIZE_TOL))
     ny = max(1, ceil((b[3] - b[1]) / h - _SIZE_TOL))
     return ny, nx
+
+
+def map_memory_bytes(ny: int, nx: int) -> int:
+    """[bytes] memory the mapping stage allocates for an (ny, nx) grid, from what the code allocates.
+
+    The sum of the per-cell arrays and the bounded temporaries:
+
+    - the occupancy grid, 1 byte per cell (``bool``), kept for the run;
+    - the quadtree's count pyramid (:func:`~sanav_mj.mapping.quadtree.pyramid_bytes`: levels
+      1 and up, a quarter of the cells each time, uint8 to uint64; about 0.34 byte per cell);
+    - the rasteriser's batch temporaries: 3 int64 index arrays of ``max(2^18, nx)`` cells, and
+      ``2^12`` (obstacle, row) pairs of at most 1 KiB each.
+
+    Not included: arrays per quadtree leaf / safe area (they grow with the obstacles'
+    boundary, not with the workspace's area) and what later stages build per cell (e.g. the
+    DWA distance field).
+    """
+    cells = int(ny) * int(nx)
+    return cells + pyramid_bytes(ny, nx) + 3 * 8 * max(_RUN_CHUNK, int(nx)) + _PAIR_CHUNK * _PAIR_BYTES
+
+
+def _round_up_2(x: float) -> float:
+    """``x`` rounded up to two significant digits."""
+    step = 10.0 ** (floor(log10(x)) - 1)
+    return round(ceil(x / step - 1e-9) * step, 12)
+
+
+def check_map_memory(bounds, resolution: float, budget_bytes: float = MEMORY_BUDGET_BYTES) -> int:
+    """Refuse a grid over the memory budget before allocating it; the estimate [bytes] otherwise.
+
+    Args:
+        bounds: (4,) [m] workspace xmin, ymin, xmax, ymax.
+        resolution: [m] cell edge length, > 0.
+        budget_bytes: [bytes] the budget (``MapConfig.memory_budget_bytes``; 2 GiB by default).
+
+    Raises:
+        MapMemoryError: one line with the cell count, the estimate, the budget and the
+            smallest ``--resolution`` (two significant digits) whose grid fits.
+    """
+    b = _check_bounds(bounds)
+    h = _check_positive("resolution", resolution)
+    ny, nx = grid_shape(b, h)
+    need = map_memory_bytes(ny, nx)
+    if need <= budget_bytes:
+        return need
+    gib = 1024.0**3
+    least = map_memory_bytes(1, 1)  # the batch temporaries: the least any grid needs
+    if budget_bytes < least:
+        raise MapMemoryError(
+            f"memory budget {budget_bytes:g} bytes (MapConfig.memory_budget_bytes) is below the {least} bytes "
+            "the mapping needs for any grid"
+        )
+    fit = _round_up_2(h * sqrt(need / budget_bytes))
+    while map_memory_bytes(*grid_shape(b, fit)) > budget_bytes:  # ends: a 1 x 1 grid fits
+        fit = _round_up_2(fit * 1.01)
+    raise MapMemoryError(
+        f"--resolution {h:g} m: the workspace {b[2] - b[0]:g} m x {b[3] - b[1]:g} m is {nx} x {ny} = {nx * ny:.3g} "
+        f"cells, about {need / gib:.3g} GiB for the map, over the budget of {budget_bytes / gib:.3g} GiB "
+        f"(MapConfig.memory_budget_bytes); use --resolution {fit:g} or coarser"
+    )
 
 
 def obstacle_polygons(
@@ -223,6 +304,7 @@ def rasterise(
     resolution: float = 0.05,
     *,
     inflation: float,
+    memory_budget_bytes: float = MEMORY_BUDGET_BYTES,
 ) -> OccupancyGrid:
     """Rasterise obstacles into a conservative occupancy grid (exact for boxes, cylinders, capsules).
 
@@ -239,6 +321,8 @@ def rasterise(
         bounds: (4,) [m] workspace xmin, ymin, xmax, ymax.
         resolution: [m] cell edge length, > 0.
         inflation: [m] growth of every obstacle (robot footprint radius + margin), >= 0.
+        memory_budget_bytes: [bytes] a grid whose :func:`map_memory_bytes` estimate exceeds
+            this is refused before allocating (:class:`MapMemoryError`).
 
     Returns:
         The occupancy grid, (ny, nx) cells with ``ny = ceil(height / resolution)``,
@@ -247,9 +331,11 @@ def rasterise(
     b = _check_bounds(bounds)
     h = _check_positive("resolution", resolution)
     infl = _check_positive("inflation", inflation, allow_zero=True)
+    check_map_memory(b, h, memory_budget_bytes)
     ny, nx = grid_shape(b, h)
     x0, y0 = float(b[0]), float(b[1])
     occ = np.zeros((ny, nx), dtype=bool)
+    flat_occ = occ.reshape(-1)
     if len(obstacles):
         verts, rho = obstacle_polygons(obstacles, 0.5 * h, infl)
         tol_c = TOLERANCE / h
@@ -258,23 +344,31 @@ def rasterise(
         i_lo = np.maximum(np.ceil((ylo - y0) / h - 0.5 - tol_c), 0).astype(np.int64)
         i_hi = np.minimum(np.floor((yhi - y0) / h - 0.5 + tol_c), ny - 1).astype(np.int64)
         rows = np.maximum(i_hi - i_lo + 1, 0)
-        total = int(rows.sum())
-        if total:
-            k = np.repeat(np.arange(len(rows)), rows)
-            start = np.cumsum(rows) - rows
-            i = i_lo[k] + (np.arange(total) - start[k])
+        ends = np.cumsum(rows)
+        total = int(ends[-1])
+        # (obstacle, row) pairs in batches, so the temporaries stay bounded on huge grids
+        for p0 in range(0, total, _PAIR_CHUNK):
+            p = np.arange(p0, min(p0 + _PAIR_CHUNK, total))
+            k = np.searchsorted(ends, p, side="right")
+            i = i_lo[k] + (p - (ends[k] - rows[k]))
             lo, hi = _row_intervals(verts, rho, k, y0 + (i + 0.5) * h)
             ok = lo <= hi
             i, lo, hi = i[ok], lo[ok], hi[ok]
             j_lo = np.maximum(np.ceil((lo - x0) / h - 0.5 - tol_c), 0).astype(np.int64)
             j_hi = np.minimum(np.floor((hi - x0) / h - 0.5 + tol_c), nx - 1).astype(np.int64)
             n = np.maximum(j_hi - j_lo + 1, 0)
-            total = int(n.sum())
-            if total:
-                first = i * nx + j_lo
-                run_start = np.cumsum(n) - n
-                flat = np.repeat(first - run_start, n) + np.arange(total)
-                occ.reshape(-1)[flat] = True
+            first = i * nx + j_lo
+            cells = np.cumsum(n)
+            r0 = 0
+            while r0 < len(n):  # runs in batches of at most max(_RUN_CHUNK, nx) cells
+                done = int(cells[r0 - 1]) if r0 else 0
+                r1 = max(r0 + 1, int(np.searchsorted(cells, done + _RUN_CHUNK, side="right")))
+                m = n[r0:r1]
+                count = int(cells[r1 - 1]) - done
+                if count:
+                    run_start = np.cumsum(m) - m
+                    flat_occ[np.repeat(first[r0:r1] - run_start, m) + np.arange(count)] = True
+                r0 = r1
     # Cells straddling the workspace boundary are partly outside: occupied.
     if nx * h > (b[2] - b[0]) + _SIZE_TOL * h:
         occ[:, -1] = True

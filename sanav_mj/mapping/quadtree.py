@@ -7,6 +7,11 @@ in-grid part is uniform is a leaf (so a non-power-of-two grid is split unevenly 
 edges instead of being fringed with tiny leaves), and the leaves partition exactly the
 grid's cells.
 
+Memory follows the grid's cells, not the root square: the count pyramid below has the grid's
+own shape, halved (rounded up) per level, so a 2 km x 7 m corridor at 0.05 m (40 000 x 140
+cells, root 65 536) costs about 1.34 bytes per cell; the tree itself only holds nodes that
+meet the grid. The leaves are the same as with a padded square root.
+
 A node's state comes from a pyramid of occupied-cell counts over aligned power-of-two
 blocks (:func:`count_pyramid`, an integral image restricted to the blocks a quadtree visits;
 measured about 7x cheaper to build than an int32 summed-area table on 512 x 512) in O(1):
@@ -76,43 +81,59 @@ def _check_min_cell(min_cell) -> int:
     return int(min_cell)
 
 
+def level_dtype(d: int) -> type:
+    """Integer dtype of pyramid level ``d`` (counts up to ``4^d``): the narrowest that holds them."""
+    return np.uint8 if d <= 3 else np.uint16 if d <= 7 else np.uint32 if d <= 15 else np.uint64
+
+
+def pyramid_shapes(ny: int, nx: int) -> list[tuple[int, int]]:
+    """Shapes of the :func:`count_pyramid` levels of an (ny, nx) grid: ``(ceil(ny / 2^d), ceil(nx / 2^d))``."""
+    shapes = [(int(ny), int(nx))]
+    for _ in range(_root_size(ny, nx).bit_length() - 1):
+        a, b = shapes[-1]
+        shapes.append(((a + 1) // 2, (b + 1) // 2))
+    return shapes
+
+
 def count_pyramid(occupied: np.ndarray) -> list[np.ndarray]:
     """Occupied-cell counts of every aligned power-of-two block of the grid.
 
-    The grid is padded to ``N x N`` cells (``N`` the quadtree root size, a power of two)
-    with *free* cells, so a count over a block reaching past the grid is the count of its
-    in-grid part. This plays the role of an integral image for the quadtree (each node's
+    Blocks reaching past the grid count their in-grid part (as if the grid were padded with
+    *free* cells up to the quadtree root size, without allocating the padding: the levels
+    follow the grid's own shape, so a 40 000 x 140 corridor costs about 1.34 bytes per cell, not
+    a 65 536^2 square). This plays the role of an integral image for the quadtree (each node's
     count is one lookup), restricted to the aligned blocks a quadtree visits, and is cheaper
-    to build: each level is three strided additions over a quarter of the previous one.
+    to build: each level is up to four strided additions over a quarter of the previous one.
 
     Args:
         occupied: (ny, nx) bool.
 
     Returns:
-        ``levels`` with ``levels[d]`` of shape (N >> d, N >> d): ``levels[d][a, b]`` is the
-        number of occupied cells in rows ``[a 2^d, (a+1) 2^d)`` and columns
-        ``[b 2^d, (b+1) 2^d)``. Integer dtype wide enough for ``4^d``.
+        ``levels`` with ``levels[d]`` of shape ``(ceil(ny / 2^d), ceil(nx / 2^d))`` (see
+        :func:`pyramid_shapes`; the last one is (1, 1)): ``levels[d][a, b]`` is the number of
+        occupied cells in rows ``[a 2^d, (a+1) 2^d)`` and columns ``[b 2^d, (b+1) 2^d)`` of the
+        grid. ``levels[0]`` is a uint8 view of ``occupied`` (no copy); level ``d`` has dtype
+        :func:`level_dtype` ``(d)``.
     """
     occ = _check_occupied(occupied)
-    ny, nx = occ.shape
-    n = _root_size(ny, nx)
-    if (ny, nx) == (n, n):
-        level = occ.view(np.uint8)
-    else:
-        level = np.zeros((n, n), dtype=np.uint8)
-        level[:ny, :nx] = occ
+    level = occ.view(np.uint8)
     levels = [level]
-    d = 0
-    while level.shape[0] > 1:
-        d += 1
-        dtype = np.uint8 if d <= 3 else np.uint16 if d <= 7 else np.uint32 if d <= 15 else np.uint64
-        up = level[0::2, 0::2].astype(dtype)
-        up += level[1::2, 0::2]
-        up += level[0::2, 1::2]
-        up += level[1::2, 1::2]
+    shapes = pyramid_shapes(*occ.shape)
+    for d in range(1, len(shapes)):
+        # even rows/columns start every block; odd ones (one fewer at an odd edge) are added in place
+        up = level[0::2, 0::2].astype(level_dtype(d))
+        for di, dj in ((1, 0), (0, 1), (1, 1)):
+            part = level[di::2, dj::2]
+            up[: part.shape[0], : part.shape[1]] += part
         levels.append(up)
         level = up
     return levels
+
+
+def pyramid_bytes(ny: int, nx: int) -> int:
+    """[bytes] what :func:`count_pyramid` allocates for an (ny, nx) grid (levels 1 and up; level 0 is a view)."""
+    shapes = pyramid_shapes(ny, nx)
+    return sum(a * b * np.dtype(level_dtype(d)).itemsize for d, (a, b) in enumerate(shapes) if d > 0)
 
 
 def _root_size(ny: int, nx: int) -> int:

@@ -246,7 +246,7 @@ class SafeAreaMap:
         return self.areas.rects
 
     def to_json(self) -> dict:
-        """The mapping part of the ``areas --json`` document (DESIGN.md): plain Python types.
+        """The mapping part of the ``areas --json`` document (docs/outputs.md): plain Python types.
 
         Keys: ``grid`` (resolution, origin, shape, inflation), ``leaves`` (free, occupied),
         ``rects`` [[xmin, ymin, xmax, ymax], ...] [m], ``edges`` [[i, j, weight_m], ...],

@@ -210,15 +210,22 @@ def test_turn_plan_turns_by_the_error_within_the_bounds(err):
     assert abs(u[:, 1].sum() * ctl.dt - err) <= ctl.rate_step[1] * ctl.dt  # within one step's turn
 
 
-def test_opening_turn_when_facing_away_then_the_mpc():
-    ctl = PenaltyMPC(ROBOT, [], 0.3, np.array([3.0, 0.0]))
-    x = np.array([0.0, 0.0, 2.0])  # 2 rad off the goal's bearing (> turn_in_place = 1 rad)
+def _statuses(ctl, x, steps):
+    """Reset ``ctl`` at pose ``x`` and run it ``steps`` control steps (0.1 s) on the exact
+    unicycle; returns (each step's command status, the final pose)."""
     ctl.reset(x)
     statuses = []
-    for k in range(30):
+    for k in range(steps):
         cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=np.zeros(2)))
         statuses.append(cmd.status)
         x = step_np(x, [cmd.v, cmd.w], 0.1)
+    return statuses, x
+
+
+def test_opening_turn_when_facing_away_then_the_mpc():
+    ctl = PenaltyMPC(ROBOT, [], 0.3, np.array([3.0, 0.0]))
+    # 2 rad off the goal's bearing (> turn_in_place = 1 rad)
+    statuses, x = _statuses(ctl, np.array([0.0, 0.0, 2.0]), 30)
     n_turn = statuses.index("ok")
     assert n_turn > 3 and statuses[:n_turn] == ["turn"] * n_turn and "turn" not in statuses[n_turn:]
     assert ctl.stats.counts["turn"] == n_turn and ctl.failures == 0
@@ -238,13 +245,7 @@ def test_forward_only_sets_the_lower_speed_bound():
 def test_injected_failures_fall_back_then_recover():
     goal = np.array([3.0, 0.0])
     ctl = PenaltyMPC(ROBOT, [], 0.3, goal, MPCConfig(), failure_injector=lambda k: 5 <= k < 8)
-    x = np.zeros(3)
-    ctl.reset(x)
-    statuses = []
-    for k in range(12):
-        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=np.zeros(2)))
-        statuses.append(cmd.status)
-        x = step_np(x, [cmd.v, cmd.w], 0.1)
+    statuses, _ = _statuses(ctl, np.zeros(3), 12)
     assert statuses[5:8] == ["fallback_shift"] * 3 and statuses[8] == "ok"
     assert ctl.failures == 3
 

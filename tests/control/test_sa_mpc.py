@@ -285,24 +285,27 @@ def run_closed_loop(
     return False, np.array(path), cmds
 
 
-@pytest.mark.parametrize("yaw", [0.0, 2.5])
-def test_closed_loop_l_corridor_with_mismatch(l_case, yaw):
-    areas, plan = l_case
+def reaches_the_goal_inside_the_corridor(case, yaw: float) -> np.ndarray:
+    """SA-MPC from (0.5, 0.5, ``yaw``) of a (areas, plan) ``case``, in closed loop with model
+    mismatch (:func:`run_closed_loop`), reaches the goal inside the corridor with no solver
+    failure; returns the path (T, 2) [m]."""
+    areas, plan = case
     ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
-    ok, path, cmds = run_closed_loop(ctl, [0.5, 0.5, yaw], plan.goal, areas.rects[plan.corridor])
+    ok, path, _ = run_closed_loop(ctl, [0.5, 0.5, yaw], plan.goal, areas.rects[plan.corridor])
     assert ok
     assert inside_union(path, areas.rects[plan.corridor]).all()
     assert ctl.stats.failures == 0
+    return path
+
+
+@pytest.mark.parametrize("yaw", [0.0, 2.5])
+def test_closed_loop_l_corridor_with_mismatch(l_case, yaw):
+    reaches_the_goal_inside_the_corridor(l_case, yaw)
 
 
 @pytest.mark.parametrize("yaw", [1.57, -2.0])
 def test_closed_loop_u_corridor_with_mismatch(u_case, yaw):
-    areas, plan = u_case
-    ctl = SAMPC(ROBOT, areas, plan, MPCConfig())
-    ok, path, cmds = run_closed_loop(ctl, [0.5, 0.5, yaw], plan.goal, areas.rects[plan.corridor])
-    assert ok
-    assert inside_union(path, areas.rects[plan.corridor]).all()
-    assert ctl.stats.failures == 0
+    path = reaches_the_goal_inside_the_corridor(u_case, yaw)
     # it went around: the path visited the top area
     assert path[:, 1].max() > 3.0
 

@@ -237,3 +237,135 @@ def test_resume_refuses_other_settings(tmp_path, fake_runs):
     (tmp_path / "meta.json").unlink()
     with pytest.raises(JournalError, match="missing"):
         run_bench(["single_rect"], ["sa-mpc"], 2, workers=1, out=tmp_path, resume=True)
+
+
+# --------------------------------------------------------------------------- streamed, atomic outputs
+
+
+def _reference_summarise(rows):
+    """The summary as the former all-rows-in-memory code computed it (the reference for the streamed one)."""
+    import math
+
+    from sanav_mj.eval.campaign import is_error
+
+    def ref_pooled(rs, prefix):
+        rs = [r for r in rs if not is_error(r) and int(r["steps"]) > 0]
+        n = sum(int(r["steps"]) for r in rs)
+        if n == 0:
+            return 0.0, 0.0, 0.0
+        mean = sum(r[f"{prefix}_mean_ms"] * int(r["steps"]) for r in rs) / n
+        second = sum((r[f"{prefix}_std_ms"] ** 2 + r[f"{prefix}_mean_ms"] ** 2) * int(r["steps"]) for r in rs) / n
+        return mean, max(r[f"{prefix}_max_ms"] for r in rs), math.sqrt(max(second - mean**2, 0.0))
+
+    groups = {}
+    for r in rows:
+        groups.setdefault((r["scenario"], r["controller"]), []).append(r)
+    out = []
+    for (scenario, controller), all_rows in groups.items():
+        rs = [r for r in all_rows if not is_error(r)]
+        sm, sx, ss = ref_pooled(rs, "solve")
+        pm, px, ps = ref_pooled(rs, "pipeline")
+        ok = [r for r in rs if r["success"]]
+        collided = sum(int(r["collisions"]) > 0 for r in rs)
+        counts = {}
+        for r in rs:
+            counts[r["reason"]] = counts.get(r["reason"], 0) + 1
+        out.append({
+            "scenario": scenario, "controller": controller, "runs": len(rs),
+            "solve_mean_ms": sm, "solve_max_ms": sx, "solve_std_ms": ss,
+            "pipeline_mean_ms": pm, "pipeline_max_ms": px, "pipeline_std_ms": ps,
+            "steps": (sum(r["steps"] for r in ok) / len(ok)) if ok else None,
+            "success_rate": 100.0 * len(ok) / len(rs) if rs else None,
+            "collision_runs": collided, "collision_rate": 100.0 * collided / len(rs) if rs else None,
+            "reasons": ", ".join(f"{k} {v}" for k, v in sorted(counts.items())),
+            "errors": len(all_rows) - len(rs),
+        })
+    return out
+
+
+def test_running_sum_is_the_builtin_sum_bit_for_bit():
+    from sanav_mj.eval.bench import RunningSum
+
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        xs = (rng.standard_normal(rng.integers(0, 60)) * 10.0 ** rng.integers(-8, 9, size=1)).tolist()
+        xs += [1e16, 1.0, -1e16][: rng.integers(0, 4)]  # cancellation, where compensation matters
+        acc = RunningSum()
+        for x in xs:
+            acc.add(x)
+        assert acc.value == sum(xs) and repr(acc.value) == repr(sum(xs))
+
+
+def test_the_streamed_summary_equals_the_all_rows_one_exactly():
+    from sanav_mj.eval.bench import BenchSummary
+
+    rng = np.random.default_rng(7)
+    rows = []
+    for i in range(400):
+        steps = int(rng.integers(0, 300)) if i % 17 else 0
+        r = {"scenario": f"s{rng.integers(3)}", "controller": f"c{rng.integers(2)}", "seed": i,
+             "success": bool(rng.random() < 0.6), "reason": str(rng.choice(["goal", "stuck", "collision"])),
+             "steps": steps, "collisions": int(rng.integers(0, 3))}
+        for p in ("solve", "pipeline"):
+            r.update({f"{p}_mean_ms": float(rng.gamma(2.0, 3.0)), f"{p}_max_ms": float(rng.gamma(5.0, 9.0)),
+                      f"{p}_std_ms": float(rng.gamma(1.0, 1.0))})
+        if i % 23 == 5:  # a run that raised: no metrics
+            r = {"scenario": r["scenario"], "controller": r["controller"], "seed": i, "success": False,
+                 "reason": "error", "error": "RuntimeError: x"}
+        rows.append(r)
+    acc = BenchSummary()
+    for r in rows:
+        acc.add(r)
+    streamed, reference = acc.rows(), _reference_summarise(rows)
+    assert streamed == reference and repr(streamed) == repr(reference)  # the same floats, bit for bit
+    assert markdown_table(streamed) == markdown_table(reference)
+
+
+def _left(folder):
+    return sorted(p.name for p in folder.iterdir())
+
+
+@pytest.mark.parametrize("name", ["results.csv", "table.md"])
+def test_an_output_cut_by_a_full_disk_is_named_and_the_others_are_written(tmp_path, fake_runs, fill_disk, name):
+    fill_disk(keep=300, ending=name)
+    with pytest.raises(OSError) as info:
+        run_bench(["single_rect"], ["sa-mpc", "dwa"], 6, workers=1, out=tmp_path)
+    assert info.value.filename == str(tmp_path / name) and "No space left on device" in str(info.value)
+    others = {"meta.json", "results.csv", "runs.jsonl", "success.png", "table.md"} - {name}
+    assert _left(tmp_path) == sorted(others)  # no cut file, no temporary file
+    meta = json.loads((tmp_path / "meta.json").read_text())
+    assert meta["wall_time_s"] > 0  # the final meta.json, written after the failure
+    if name != "results.csv":
+        assert len((tmp_path / "results.csv").read_text().splitlines()) == 1 + 12
+
+
+def test_meta_json_before_the_runs_is_written_whole_or_not_at_all(tmp_path, fake_runs, fill_disk):
+    finished, _ = fake_runs
+    fill_disk(keep=100, ending="meta.json")
+    with pytest.raises(OSError) as info:
+        run_bench(["single_rect"], ["sa-mpc"], 2, workers=1, out=tmp_path)
+    assert info.value.filename == str(tmp_path / "meta.json")
+    assert _left(tmp_path) == [] and finished == []  # nothing ran, nothing half-written
+
+
+def test_ctrl_c_mid_campaign_leaves_no_partial_output(tmp_path, fake_runs):
+    from sanav_mj.eval.campaign import CampaignInterrupted
+
+    _, state = fake_runs
+    state.update(interrupt_at=5)
+    with pytest.raises(CampaignInterrupted):
+        run_bench(["single_rect"], ["sa-mpc"], 8, workers=1, out=tmp_path)
+    assert _left(tmp_path) == ["meta.json", "runs.jsonl"]  # results.csv was being written: gone, no .part
+
+
+def test_a_full_disk_in_the_cli_is_exit_2_naming_the_file(tmp_path, fake_runs, fill_disk, capsys):
+    from sanav_mj.cli import main
+
+    fill_disk(keep=200, ending="results.csv")
+    code = main(["bench", "single_rect", "--controllers", "sa-mpc", "--runs", "3", "--workers", "1",
+                 "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.endswith(f"sanav-mj: error: {tmp_path / 'results.csv'}: No space left on device\n")
+    assert err.splitlines()[-1].startswith("sanav-mj: error:") and "Traceback" not in err  # after the progress bar
+    assert "results.csv" not in _left(tmp_path) and "table.md" in _left(tmp_path)

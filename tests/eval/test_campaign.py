@@ -153,22 +153,9 @@ def test_a_last_line_cut_short_is_dropped_and_a_broken_middle_line_is_an_error(t
         read_journal(journal)
 
 
-def test_ctrl_c_with_workers_stops_the_pool_and_keeps_the_finished_rows(tmp_path, monkeypatch):
+def test_ctrl_c_with_workers_stops_the_pool_and_keeps_the_finished_rows(tmp_path, ctrl_c_after):
     """Ctrl-C arrives in the parent (here: from the progress bar after the second row)."""
-
-    class Bar:
-        def __init__(self, *a, **kw):
-            self.n = 0
-
-        def update(self, k=1):
-            self.n += k
-            if self.n == 2:
-                raise KeyboardInterrupt
-
-        def close(self):
-            pass
-
-    monkeypatch.setattr(campaign, "tqdm", Bar)
+    ctrl_c_after(2)
     journal = tmp_path / "runs.jsonl"
     jobs = [j for j in _jobs(12) if j.seed != 3]
     with pytest.raises(CampaignInterrupted) as info:
@@ -324,38 +311,12 @@ def test_resume_cli_exit_2_one_line_naming_the_line(tmp_path, monkeypatch, capsy
 
 # --------------------------------------------------------------------------- lazy jobs, bounded in flight
 
-def _endless(counter):
-    """A campaign far too big to list: 10^12 jobs generated on demand; counts those taken."""
-    def make():
-        k = 0
-        while True:
-            counter.append(k)
-            yield Job("single_rect", "dwa", k, (), 12.5)
-            k += 1
-    return campaign.JobSet(make, 10**12)
-
-
 @pytest.mark.parametrize("workers", [1, 2])
-def test_a_huge_lazy_campaign_is_taken_only_as_far_as_it_runs(tmp_path, workers):
-    taken: list[int] = []
-    finished: list[int] = []
-
-    class Bar:  # Ctrl-C after the fifth finished row
-        def __init__(self, *a, total=None, **kw):
-            assert total == 10**12
-
-        def update(self, k=1):
-            finished.append(k)
-            if len(finished) == 5:
-                raise KeyboardInterrupt
-
-        def close(self):
-            pass
-
-    import unittest.mock
-
-    with unittest.mock.patch.object(campaign, "tqdm", Bar), pytest.raises(CampaignInterrupted) as info:
-        run_jobs(_endless(taken), workers=workers, journal=tmp_path / "runs.jsonl", runner=fake_plain)
+def test_a_huge_lazy_campaign_is_taken_only_as_far_as_it_runs(tmp_path, workers, ctrl_c_after, endless_jobs):
+    jobs, taken = endless_jobs(10**12, 12.5)
+    ctrl_c_after(5, total=10**12)  # Ctrl-C after the fifth finished row
+    with pytest.raises(CampaignInterrupted) as info:
+        run_jobs(jobs, workers=workers, journal=tmp_path / "runs.jsonl", runner=fake_plain)
     assert (info.value.saved, info.value.total) == (5, 10**12)
     # in this process one job at a time; with the pool at most 2 x workers in flight beyond the finished
     assert len(taken) <= 5 + (0 if workers == 1 else 2 * workers)
@@ -420,3 +381,59 @@ def test_workers_exit_when_the_parent_is_killed_with_sigkill(tmp_path):
     finally:
         parent.kill()
         parent.wait()
+
+
+# --------------------------------------------------------------------------- streaming rows (on_row)
+
+
+class _StragglerExecutor(campaign.Executor):
+    """Finishes every job at once, in reverse order of submission, except job 0 (seed 0),
+    which finishes only when it is the last job in flight: rows arrive out of order."""
+
+    slots = 4
+
+    def __init__(self) -> None:
+        self.jobs: dict[int, Job] = {}
+        self.submitted = 0
+        self.submitted_before_first_done: int | None = None
+
+    def submit(self, job):
+        self.submitted += 1
+        self.jobs[self.submitted] = job
+        return self.submitted
+
+    def wait(self, handles):
+        ready = [h for h in handles if self.jobs[h].seed != 0] or handles
+        if any(self.jobs[h].seed == 0 for h in ready):
+            self.submitted_before_first_done = self.submitted
+        return [(h, _metrics(self.jobs.pop(h))) for h in sorted(ready, reverse=True)]
+
+
+def test_on_row_gets_the_rows_in_job_order_and_none_are_kept(tmp_path):
+    jobs = campaign.JobSet(lambda: (Job("single_rect", "dwa", k) for k in range(500)), 500, distinct=True)
+    got = []
+    ex = _StragglerExecutor()
+    kept = run_jobs(jobs, executor=ex, journal=tmp_path / "runs.jsonl", on_row=got.append)
+    assert kept == []
+    assert [r["seed"] for r in got] == list(range(500))
+    assert len(read_journal(tmp_path / "runs.jsonl")) == 500
+    # rows finished ahead of the straggler are held at most REORDER_WINDOW x slots: no job
+    # further ahead is started (without the window all 500 would run before it finishes)
+    assert ex.submitted_before_first_done == campaign.REORDER_WINDOW * ex.slots
+
+
+def test_on_row_rows_equal_the_returned_rows_also_on_resume(tmp_path):
+    jobs = _jobs(8)
+    whole = run_jobs(jobs, workers=1, runner=fake_run)
+    journal = tmp_path / "runs.jsonl"
+    run_jobs(jobs[:5], workers=1, runner=fake_run, journal=journal)
+    streamed = []
+    assert run_jobs(jobs, workers=1, runner=fake_run, journal=journal, resume=True, on_row=streamed.append) == []
+    strip = [{k: v for k, v in r.items() if k != "pid"} for r in whole]
+    assert [{k: v for k, v in r.items() if k != "pid"} for r in streamed] == strip
+
+
+def test_a_distinct_jobset_keeps_no_keys_but_a_plain_one_refuses_duplicates(tmp_path):
+    twice = [Job("single_rect", "dwa", 0), Job("single_rect", "dwa", 0)]
+    with pytest.raises(JournalError, match="two jobs"):
+        run_jobs(campaign.JobSet(lambda: iter(twice), 2), workers=1, runner=fake_run, journal=tmp_path / "a.jsonl")

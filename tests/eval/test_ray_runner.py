@@ -11,7 +11,6 @@ import sys
 
 import pytest
 
-from sanav_mj.eval import campaign
 from sanav_mj.eval.bench import run_bench
 from sanav_mj.eval.campaign import CampaignInterrupted, ClusterError, Job, read_journal, run_jobs
 from sanav_mj.eval.ray_runner import RayExecutor, ray_session, scenario_bundle, unpack
@@ -149,21 +148,9 @@ def test_error_rows_and_robustness_on_ray_equal_the_pools(tmp_path, session):
     assert (tmp_path / "ray" / "summary.csv").read_text() == (tmp_path / "pool" / "summary.csv").read_text()
 
 
-def test_ctrl_c_on_ray_cancels_the_tasks_keeps_the_finished_and_resumes(tmp_path, session, monkeypatch):
-    class Bar:  # Ctrl-C when the second row has been journalled
-        def __init__(self, *a, **kw):
-            self.n = 0
-
-        def update(self, k=1):
-            self.n += k
-            if self.n == 2:
-                raise KeyboardInterrupt
-
-        def close(self):
-            pass
-
+def test_ctrl_c_on_ray_cancels_the_tasks_keeps_the_finished_and_resumes(tmp_path, session, monkeypatch, ctrl_c_after):
     args = (["single_rect", "u_shape"], ["dwa"], 3)
-    monkeypatch.setattr(campaign, "tqdm", Bar)
+    ctrl_c_after(2)  # Ctrl-C when the second row has been journalled
     out = tmp_path / "b"
     with pytest.raises(CampaignInterrupted) as info:
         run_bench(*args, workers=2, out=out, time_limit_s=10.0, ray=session)
@@ -198,34 +185,12 @@ def test_the_ray_option_takes_an_address_not_a_scenario(capsys):
     assert err.count("\n") == 1 and "expected auto, HOST:PORT or ray://HOST:PORT, got 'u_shape'" in err
 
 
-def test_ray_takes_jobs_lazily_with_two_per_cpu_in_flight(tmp_path, session, monkeypatch):
-    taken = []
-
-    def make():
-        k = 0
-        while True:
-            taken.append(k)
-            yield Job("single_rect", "dwa", k, (), 3.0)
-            k += 1
-
-    finished = []
-
-    class Bar:  # Ctrl-C when the third row has been journalled
-        def __init__(self, *a, total=None, **kw):
-            assert total == 10**9
-
-        def update(self, k=1):
-            finished.append(k)
-            if len(finished) == 3:
-                raise KeyboardInterrupt
-
-        def close(self):
-            pass
-
-    monkeypatch.setattr(campaign, "tqdm", Bar)
+def test_ray_takes_jobs_lazily_with_two_per_cpu_in_flight(tmp_path, session, ctrl_c_after, endless_jobs):
+    jobs, taken = endless_jobs(10**9, 3.0)
+    ctrl_c_after(3, total=10**9)  # Ctrl-C when the third row has been journalled
     executor = RayExecutor(session)
     assert executor.slots == 4  # 2 x the 2 CPUs
     with pytest.raises(CampaignInterrupted) as info:
-        run_jobs(campaign.JobSet(make, 10**9), journal=tmp_path / "runs.jsonl", executor=executor)
+        run_jobs(jobs, journal=tmp_path / "runs.jsonl", executor=executor)
     assert info.value.saved == 3 and len(read_journal(tmp_path / "runs.jsonl")) == 3
     assert 3 + 1 <= len(taken) <= 3 + executor.slots  # the finished ones plus at most 4 in flight

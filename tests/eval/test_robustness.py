@@ -109,14 +109,8 @@ def _fake_doc(job):
     }
 
 
-def test_two_key_aggregation_known_answers(tmp_path, monkeypatch):
-    seen = []
-
-    def fake_run_jobs(jobs, workers, desc, **kw):
-        seen.extend(jobs)
-        return [_fake_doc(j) for j in jobs]
-
-    monkeypatch.setattr(robustness, "run_jobs", fake_run_jobs)
+def test_two_key_aggregation_known_answers(tmp_path, fake_campaign_runs):
+    seen = fake_campaign_runs(_fake_doc)
     out = tmp_path / "rb"
     summary = run_robustness(["single_rect"], parse_sweep(["mass=1,2", "delay=0,1"]), seeds=3,
                              controller="sa-mpc", workers=1, out=out,
@@ -391,8 +385,8 @@ def _capture_heat_maps(monkeypatch):
     return maps
 
 
-def test_integer_keys_are_written_as_integers(tmp_path, monkeypatch):
-    monkeypatch.setattr(robustness, "run_jobs", lambda jobs, workers, desc, **kw: [_fake_doc(j) for j in jobs])
+def test_integer_keys_are_written_as_integers(tmp_path, monkeypatch, fake_campaign_runs):
+    fake_campaign_runs(_fake_doc)
     maps = _capture_heat_maps(monkeypatch)
     out = tmp_path / "rb"
     run_robustness(**_sweep_args(out))
@@ -404,14 +398,14 @@ def test_integer_keys_are_written_as_integers(tmp_path, monkeypatch):
     assert title.startswith("single_rect / sa-mpc: success rate [%]")
 
 
-def test_summary_and_heat_maps_per_scenario_and_pooled(tmp_path, monkeypatch):
+def test_summary_and_heat_maps_per_scenario_and_pooled(tmp_path, monkeypatch, fake_campaign_runs):
     def doc(job):
         d = _fake_doc(job)
         if job.scenario == "u_shape":  # every u_shape run fails: the pooled rate is the mean of the two
             d.update(success=False, reason="stuck")
         return d
 
-    monkeypatch.setattr(robustness, "run_jobs", lambda jobs, workers, desc, **kw: [doc(j) for j in jobs])
+    fake_campaign_runs(doc)
     maps = _capture_heat_maps(monkeypatch)
     out = tmp_path / "rb"
     summary = run_robustness(**_sweep_args(out, scenarios=["single_rect", "u_shape"]))
@@ -434,14 +428,14 @@ def test_summary_and_heat_maps_per_scenario_and_pooled(tmp_path, monkeypatch):
         assert (out / "per_scenario" / f"{name}_min_clearance.png").read_bytes()[:4] == b"\x89PNG"
 
 
-def test_runs_without_a_clearance_give_an_empty_field_not_inf(tmp_path, monkeypatch):
+def test_runs_without_a_clearance_give_an_empty_field_not_inf(tmp_path, fake_campaign_runs):
     """A goal with no path: the run never moved and has no clearance (None); the point has none either."""
     def doc(job):
         d = _fake_doc(job)
         d.update(success=False, reason="no_path", steps=0, min_clearance_m=None)
         return d
 
-    monkeypatch.setattr(robustness, "run_jobs", lambda jobs, workers, desc, **kw: [doc(j) for j in jobs])
+    fake_campaign_runs(doc)
     out = tmp_path / "rb"
     summary = run_robustness(**_sweep_args(out))
     assert all(math.isnan(r["min_clearance_m"]) and r["success_rate"] == 0.0 for r in summary)
@@ -450,3 +444,92 @@ def test_runs_without_a_clearance_give_an_empty_field_not_inf(tmp_path, monkeypa
     assert "inf" not in (out / "summary.csv").read_text()
     assert {r["min_clearance_m"] for r in _read(out / "robustness.csv")} == {""}
     _assert_pngs(out)
+
+
+@pytest.mark.parametrize("name", ["robustness.csv", "summary.csv", "summary_by_scenario.csv"])
+def test_an_output_cut_by_a_full_disk_is_named_and_the_others_are_written(tmp_path, monkeypatch, fill_disk, name):
+    from sanav_mj.eval import campaign
+
+    monkeypatch.setattr(campaign, "run_job", _fake_doc)
+    fill_disk(keep=150, ending=name)
+    out = tmp_path / "rb"
+    with pytest.raises(OSError) as info:
+        run_robustness(**_sweep_args(out, scenarios=["single_rect", "u_shape"]))
+    assert info.value.filename == str(out / name) and "No space left on device" in str(info.value)
+    expected = {"meta.json", "runs.jsonl", "robustness.csv", "summary.csv", "summary_by_scenario.csv", *PNGS,
+                "per_scenario"} - {name}
+    assert sorted(p.name for p in out.iterdir()) == sorted(expected)  # no cut file, no temporary file
+    assert len(list((out / "per_scenario").iterdir())) == 2 * len(PNGS)
+    assert json.loads((out / "meta.json").read_text())["wall_time_s"] > 0
+
+
+def test_the_streamed_sweep_summary_equals_a_grouping_of_all_rows():
+    """:class:`SweepSummary` (fed row by row) against a plain grouping of every row."""
+    from sanav_mj.eval.robustness import SweepSummary
+
+    rng = np.random.default_rng(3)
+    names = {"a": "a", "b": "b"}
+    rows = []
+    for i in range(600):
+        cell = (int(rng.integers(2)), int(rng.integers(3)))
+        r = {"scenario": str(rng.choice(["a", "b"])), "success": bool(rng.random() < 0.5),
+             "reason": str(rng.choice(["goal", "stuck"])), "collisions": int(rng.integers(0, 2)),
+             "min_clearance_m": None if i % 7 == 0 else float(rng.uniform(-0.1, 1.0)), "_cell": cell}
+        if i % 19 == 0:
+            r = {"scenario": r["scenario"], "success": False, "reason": "error", "_cell": cell}
+        rows.append(r)
+    acc = SweepSummary(names)
+    for r in rows:
+        acc.add(r, r["_cell"])
+    for scenario in (None, "a", "b"):
+        got = acc.cells("mass", [1.0, 2.0, 3.0], "delay", [0, 1], scenario)
+        for row, (yi, xi) in got:
+            cell = [r for r in rows if r["_cell"] == (yi, xi) and scenario in (None, r["scenario"])]
+            ran = [r for r in cell if r["reason"] != "error"]
+            clear = [r["min_clearance_m"] for r in ran if r.get("min_clearance_m") is not None]
+            assert (row["runs"], row["errors"]) == (len(ran), len(cell) - len(ran))
+            assert row["success_rate"] == 100.0 * sum(r["success"] for r in ran) / len(ran)
+            assert row["collision_rate"] == 100.0 * sum(r["collisions"] > 0 for r in ran) / len(ran)
+            assert row["min_clearance_m"] == min(clear)
+            counts = {k: sum(r["reason"] == k for r in ran) for k in ("goal", "stuck")}
+            assert row["reasons"] == ", ".join(f"{k} {v}" for k, v in counts.items() if v)
+
+
+def test_the_campaign_scripts_report_aggregates_as_summary_csv(tmp_path, monkeypatch, fake_campaign_runs):
+    """scripts/robustness_campaign.py reads robustness.csv back through :class:`CellSummary`:
+    over one grid point its numbers are summary.csv's, a run that raised left out (it used to
+    stop the report on the error row's empty ``collisions``)."""
+    import importlib.util
+    import sys
+
+    from sanav_mj.eval.campaign import error_row
+
+    spec = importlib.util.spec_from_file_location(
+        "robustness_campaign", Path(__file__).resolve().parents[2] / "scripts" / "robustness_campaign.py")
+    script = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, script)  # its dataclasses look their module up
+    spec.loader.exec_module(script)
+
+    def doc(job):
+        if job.seed == 0:
+            return error_row(job, RuntimeError("boom"))
+        d = _fake_doc(job)
+        if job.seed == 1:
+            d.update(success=False, reason="collision", collisions=2, min_clearance_m=-0.02)
+        if job.seed == 2:
+            d.update(success=False, reason="no_path", steps=0, min_clearance_m=None)
+        return d
+
+    fake_campaign_runs(doc)
+    out = tmp_path / "rb"
+    (cell,) = run_robustness(["single_rect"], parse_sweep(["mass=1", "delay=0"]), seeds=4, controller="sa-mpc", workers=1,
+                             out=out)
+    rows = _read(out / "robustness.csv")
+    assert len(rows) == 4 and rows[0]["collisions"] == ""  # the error row, with no metrics
+    n, succ, coll, clear = script._aggregate(rows)
+    assert (n, succ, coll, clear) == (cell["runs"], cell["success_rate"], cell["collision_rate"],
+                                      cell["min_clearance_m"])
+    assert (n, succ, coll, clear) == (3, 100.0 / 3, 100.0 / 3, -0.02)
+    assert script._aggregate([]) == (0, 0.0, 0.0, script._aggregate([])[3]) and math.isnan(script._aggregate([])[3])
+    acc = script._cell(rows)
+    assert (acc.all, acc.success, acc.reasons) == (4, 1, {"collision": 1, "no_path": 1, "goal": 1})

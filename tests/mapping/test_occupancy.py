@@ -161,7 +161,7 @@ def test_grid_geometry_and_boundary():
     assert grid.shape == (10, 11)
     assert np.all(grid.occupied[:, -1])
     assert not np.any(grid.occupied[:, :-1])
-    assert np.allclose(grid.origin, [0.0, 0.0])
+    np.testing.assert_array_equal(grid.origin, [0.0, 0.0])  # exact: the workspace's lower-left corner, copied
     assert grid.inflation == 0.3 and grid.resolution == 0.1
 
 
@@ -219,3 +219,111 @@ def test_builtin_scenarios_free_cells_are_clear(name):
             pts = np.stack([grid.origin[0] + (jj + u) * 0.05, grid.origin[1] + (ii + v) * 0.05], axis=1)
             for ob in scenario.obstacles:
                 assert ob.signed_distance(pts).min() > inflation - 1e-9
+
+
+# ------------------------------------------------------------------ memory (issue 12)
+
+
+def _scattered_boxes(n: int, width: float, height: float, seed: int = 0) -> tuple[Obstacle, ...]:
+    rng = np.random.default_rng(seed)
+    return tuple(Obstacle(f"o{k}", "box", rng.uniform([0, 0], [width, height]), float(rng.uniform(0, 3)),
+                          rng.uniform(0.2, 5.0, 2), 1.0, k) for k in range(n))
+
+
+def test_batched_rasterisation_equals_one_batch(monkeypatch):
+    """The (obstacle, row) and run batches only bound the temporaries: the grid is the same."""
+    from sanav_mj.mapping import occupancy
+
+    obs = _scattered_boxes(30, 40.0, 30.0) + (disc(20.0, 15.0, 3.0),)
+    one = rasterise(obs, [0, 0, 40, 30], 0.05, inflation=0.38).occupied
+    monkeypatch.setattr(occupancy, "_PAIR_CHUNK", 7)
+    monkeypatch.setattr(occupancy, "_RUN_CHUNK", 5)
+    many = rasterise(obs, [0, 0, 40, 30], 0.05, inflation=0.38).occupied
+    assert one.sum() > 10_000 and np.array_equal(one, many)
+
+
+def test_memory_estimate_matches_what_mapping_allocates():
+    """tracemalloc peak of the whole mapping stage on a 6000 x 4000 grid vs map_memory_bytes.
+
+    Here the per-cell arrays dominate (24 MB grid + 8 MB count pyramid); the estimate also
+    counts the batch temporaries at their bound (~10 MB), which a few obstacles do not reach,
+    and not the per-leaf arrays (a few MB for 20 boxes). Stated factor: peak in [0.6, 1.25] x
+    estimate (measured 0.82).
+    """
+    import tracemalloc
+
+    from sanav_mj.mapping import MapConfig, build_map
+    from sanav_mj.mapping.occupancy import map_memory_bytes
+
+    bounds = np.array([0.0, 0.0, 300.0, 200.0])
+    obs = _scattered_boxes(20, 300.0, 200.0)
+    est = map_memory_bytes(*grid_shape(bounds, 0.05))
+    tracemalloc.start()
+    try:
+        build_map(obs, bounds, 0.38, MapConfig())
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert 0.6 * est <= peak <= 1.25 * est, (peak, est)
+
+
+def test_count_pyramid_allocates_what_pyramid_bytes_says():
+    import tracemalloc
+
+    from sanav_mj.mapping.quadtree import count_pyramid, pyramid_bytes
+
+    occ = np.zeros((140, 40_000), dtype=bool)  # a 2 km x 7 m corridor at 0.05 m
+    occ[::7, ::13] = True
+    tracemalloc.start()
+    try:
+        levels = count_pyramid(occ)
+        current = tracemalloc.get_traced_memory()[0]
+    finally:
+        tracemalloc.stop()
+    want = pyramid_bytes(*occ.shape)
+    assert sum(level.nbytes for level in levels[1:]) == want
+    assert want < 0.35 * occ.size  # no padding to the 65 536^2 root square (4.3 GB)
+    assert current <= want + 64 * 1024
+
+
+def test_map_over_budget_is_refused_before_allocating():
+    import tracemalloc
+
+    from sanav_mj.mapping import MapConfig, MapMemoryError, build_map
+    from sanav_mj.mapping.occupancy import check_map_memory, map_memory_bytes
+
+    bounds = [0.0, 0.0, 10_000.0, 10_000.0]  # 10 km x 10 km at 0.05 m: 4e10 cells
+    tracemalloc.start()
+    try:
+        with pytest.raises(MapMemoryError) as err:
+            build_map((), bounds, 0.38, MapConfig())
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1_000_000
+    msg = str(err.value)
+    assert "\n" not in msg and "200000 x 200000 = 4e+10 cells" in msg and "GiB" in msg
+    fit = float(msg.split("use --resolution ")[1].split()[0])
+    budget = MapConfig().memory_budget_bytes
+    assert map_memory_bytes(*grid_shape(bounds, fit)) <= budget
+    assert map_memory_bytes(*grid_shape(bounds, fit - 0.01)) > budget  # two significant digits: the smallest
+    assert check_map_memory(bounds, fit) <= budget
+    # a smaller budget refuses a smaller map, a larger one lets it through
+    small = [0.0, 0.0, 100.0, 100.0]
+    with pytest.raises(MapMemoryError, match="use --resolution"):
+        build_map((), small, 0.38, MapConfig(memory_budget_bytes=14_000_000))  # 4e6 cells: 15.9 MB
+    build_map((), small, 0.38, MapConfig(memory_budget_bytes=30_000_000))
+    with pytest.raises(MapMemoryError, match="below the .* bytes the mapping needs for any grid"):
+        build_map((), small, 0.38, MapConfig(memory_budget_bytes=1_000_000))
+    with pytest.raises(ValueError, match="memory_budget_bytes must be an integer > 0"):
+        MapConfig(memory_budget_bytes=0)
+
+
+def test_cli_refuses_a_huge_workspace_in_one_line(tmp_path, capsys, make_scenario_xml):
+    from sanav_mj.cli import main
+
+    path = tmp_path / "huge.xml"
+    path.write_text(make_scenario_xml(floor='<geom name="floor" type="plane" pos="0 0 0" size="5000 5000 0.1"/>'))
+    assert main(["areas", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(path) in err[0] and "--resolution 0.05" in err[0] and "use --resolution" in err[0]

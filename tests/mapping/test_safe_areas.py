@@ -83,13 +83,18 @@ def test_graph_is_exactly_the_touching_pairs(occ, res, ox, oy):
     assert areas.edges.shape == (len(ref), 2) and areas.portals.shape == (len(ref), 2, 2)
     expected_rects = np.stack([ox + res * rects[:, 1], oy + res * rects[:, 0],
                                ox + res * rects[:, 3], oy + res * rects[:, 2]], axis=1)
-    assert np.allclose(areas.rects, expected_rects)
+    # exact: connectivity computes origin + resolution * cell index with the same float64 operations
+    np.testing.assert_array_equal(areas.rects, expected_rects)
     centre = 0.5 * (expected_rects[:, :2] + expected_rects[:, 2:])
+    eps = np.finfo(float).eps
     for (a, b), w, portal in zip(areas.edges.tolist(), areas.weights, areas.portals):
         assert a < b
-        assert w == pytest.approx(np.linalg.norm(centre[a] - centre[b]))
+        # a 2-vector norm, reduced along an axis here and by a dot product (BLAS, maybe FMA) in
+        # the test: sum of two squares and a sqrt, each correctly rounded -> within 4 eps relative
+        assert w == pytest.approx(np.linalg.norm(centre[a] - centre[b]), rel=4 * eps, abs=0)
         (cx0, cy0), (cx1, cy1) = ref[(a, b)]
-        assert np.allclose(portal, [[ox + res * cx0, oy + res * cy0], [ox + res * cx1, oy + res * cy1]])
+        # exact, as the rectangles
+        np.testing.assert_array_equal(portal, [[ox + res * cx0, oy + res * cy0], [ox + res * cx1, oy + res * cy1]])
         assert np.linalg.norm(portal[1] - portal[0]) > 0
 
 
@@ -114,7 +119,11 @@ def rasterise_free_grid(occ: np.ndarray):
 def test_empty_map_is_one_rectangle(bounds):
     result = build_map([], bounds, inflation=0.3)
     assert len(result.areas.rects) == 1 and len(result.leaves) == 1
-    assert np.allclose(result.areas.rects[0], bounds)
+    # origin + resolution * n_cells vs the bound: one product and one sum, each rounded (<= 1 ulp
+    # of the larger magnitude each), so within 2 eps of max |bound| (and the 1e-6-cell snapping of
+    # grid_shape, which rounds the cell count, not these coordinates)
+    eps = np.finfo(float).eps
+    np.testing.assert_allclose(result.areas.rects[0], bounds, rtol=0, atol=2 * eps * max(1.0, np.abs(bounds).max()))
     assert len(result.areas.edges) == 0
 
 

@@ -33,6 +33,14 @@ def _scan(pose, offset, angles, boxes, room, max_range=6.0):
     return np.where(hit, best, max_range), hit
 
 
+def _coverage(boxes: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """How many of ``boxes`` (K, 4) [i0, j0, i1, j1) cover each cell of a ``shape`` grid."""
+    cover = np.zeros(shape, dtype=int)
+    for i0, j0, i1, j1 in boxes.tolist():
+        cover[i0:i1, j0:j1] += 1
+    return cover
+
+
 def test_scans_give_the_rebuilds_coverage_and_replan_test():
     room = (0.0, 0.0, 8.0, 4.0)
     offset = (0.12, 0.0)
@@ -44,23 +52,13 @@ def test_scans_give_the_rebuilds_coverage_and_replan_test():
         r, hit = _scan(pose, offset, angles, boxes, room)
         up = sm.integrate(pose, r, hit, angles)
         ref = build_safe_areas(sm.grid.safe_grid())
-        paint = np.zeros(sm.grid.shape, dtype=int)
-        for i0, j0, i1, j1 in up.boxes.tolist():
-            paint[i0:i1, j0:j1] += 1
-        ref_paint = np.zeros(sm.grid.shape, dtype=int)
-        for i0, j0, i1, j1 in ref.boxes.tolist():
-            ref_paint[i0:i1, j0:j1] += 1
-        assert np.array_equal(paint, ref_paint) and paint.max() <= 1
+        paint = _coverage(up.boxes, sm.grid.shape)
+        assert np.array_equal(paint, _coverage(ref.boxes, sm.grid.shape)) and paint.max() <= 1
         assert set(up.timing_ms) == {"map", "areas", "snapshot", "route", "total"}
         # route areas: the rebuild's coverage of the route grid (unknown passable)
         route_ref = build_safe_areas(sm.grid.route_grid())
-        rp = np.zeros(sm.grid.shape, dtype=int)
-        for i0, j0, i1, j1 in up.route_boxes.tolist():
-            rp[i0:i1, j0:j1] += 1
-        rr = np.zeros(sm.grid.shape, dtype=int)
-        for i0, j0, i1, j1 in route_ref.boxes.tolist():
-            rr[i0:i1, j0:j1] += 1
-        assert np.array_equal(rp, rr) and rp.max() <= 1
+        rp = _coverage(up.route_boxes, sm.grid.shape)
+        assert np.array_equal(rp, _coverage(route_ref.boxes, sm.grid.shape)) and rp.max() <= 1
         assert np.all(rp[paint == 1] == 1)  # safe space is route space
     # unexplored space (behind the box, in the blind sector behind the robot) is routable, not safe
     assert rp.sum() > paint.sum()

@@ -64,6 +64,16 @@ def pinned(env: NavEnv, map_seed: int, yaw: float = 0.0):
                                            "random_endpoints": False})
 
 
+def step_until_done(env: NavEnv, action: int, max_steps: int):
+    """Step ``action`` until the episode ends, at most ``max_steps`` times; returns (steps
+    taken, the last reward, terminated, truncated, info)."""
+    for k in range(1, max_steps + 1):
+        _, r, term, trunc, info = env.step(action)
+        if term or trunc:
+            break
+    return k, r, term, trunc, info
+
+
 def test_passes_gymnasium_env_checker_without_a_warning(maps):
     """Made through gymnasium (so the checker also builds each declared render mode from the
     spec), every warning an error."""
@@ -207,10 +217,7 @@ def test_progress_reward_is_exact_on_open_floor(maps):
 def test_collision_terminates_with_the_penalty(maps):
     env = make_env(maps)
     pinned(env, 1)
-    for _ in range(60):
-        obs, r, term, trunc, info = env.step(FORWARD)
-        if term or trunc:
-            break
+    _, r, term, trunc, info = step_until_done(env, FORWARD, 60)
     assert term and info["reason"] == "collision" and info["is_success"] is False
     assert r < env.config.reward.collision + 0.5  # penalty dominates the step's reward
     assert env.plant.robot_obstacle_contacts() > 0
@@ -219,10 +226,7 @@ def test_collision_terminates_with_the_penalty(maps):
 def test_goal_terminates_with_the_bonus(maps):
     env = make_env(maps)
     pinned(env, 2)
-    for _ in range(20):
-        obs, r, term, trunc, info = env.step(FORWARD)
-        if term or trunc:
-            break
+    _, r, term, trunc, info = step_until_done(env, FORWARD, 20)
     assert term and info["reason"] == "goal" and info["is_success"] is True
     assert r > env.config.reward.goal - 0.5
     assert np.hypot(*(env.plant.pose()[:2] - [0.5, 0.0])) <= env.config.termination.goal_tolerance_m
@@ -231,10 +235,7 @@ def test_goal_terminates_with_the_bonus(maps):
 def test_leaving_the_workspace_is_a_collision(maps):
     env = make_env(maps)
     pinned(env, 3, yaw=0.0)  # at x = 9.4 facing +x; the edge is x = 10
-    for _ in range(20):
-        obs, r, term, trunc, info = env.step(FORWARD)
-        if term or trunc:
-            break
+    _, r, term, trunc, info = step_until_done(env, FORWARD, 20)
     assert term and info["reason"] == "out_of_bounds"
     assert env.plant.pose()[0] > 10.0 - env.plant.robot.footprint_radius
 
@@ -243,10 +244,7 @@ def test_standing_still_is_truncated_as_stuck_after_the_window(maps):
     env = make_env(maps, termination=TerminationConfig(stuck_window_s=2.0))
     pinned(env, 0)
     window = 20
-    for k in range(1, 100):
-        obs, r, term, trunc, info = env.step(STOP)
-        if term or trunc:
-            break
+    k, _, term, trunc, info = step_until_done(env, STOP, 99)
     assert trunc and not term and info["reason"] == "stuck" and info["is_success"] is False
     assert k == window + 1
 
@@ -254,10 +252,7 @@ def test_standing_still_is_truncated_as_stuck_after_the_window(maps):
 def test_timeout_truncates(maps):
     env = make_env(maps, termination=TerminationConfig(time_limit_s=0.7))
     pinned(env, 0)
-    for k in range(1, 20):
-        *_, term, trunc, info = env.step(FORWARD)
-        if term or trunc:
-            break
+    k, _, term, trunc, info = step_until_done(env, FORWARD, 19)
     assert (k, trunc, info["reason"]) == (7, True, "timeout")
 
 

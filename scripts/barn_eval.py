@@ -1,0 +1,192 @@
+"""BARN-style evaluation of generated worlds (see :mod:`sanav_mj.generate`, :mod:`sanav_mj.eval.barn`).
+
+    python scripts/barn_eval.py worlds runs/barn40/*.xml --out runs/barn40_worlds.csv
+        per world: shortest path L [m] for the BARN metric (inscribed clearance), t_opt [s],
+        widest disc radius that passes [m], and whether the safe-area planner finds a path at
+        each (inflation, resolution) of --configs (default: today's 0.33 + 0.05 m at 0.05 m,
+        without the margin, at 0.025 m, both, and at 0.0125 m).
+    python scripts/barn_eval.py score runs/bench_dir --worlds runs/barn40_worlds.csv
+        BARN score per run of a ``sanav-mj bench`` output folder (results.csv) and the mean.
+    python scripts/barn_eval.py closed-loop runs/barn40/*.xml --worlds runs/barn40_worlds.csv \
+            --margin 0.05 --resolution 0.05 [--mismatch KEY=VALUE ...] --out runs/cl.json
+        SA-MPC seed 0 on each world with the map inflated by circumscribed radius + MARGIN at
+        RESOLUTION; per run also the largest distance of the true position outside every safe
+        area (the tracking excursion the margin has to absorb).
+
+One process; prints a markdown summary, writes CSV.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from sanav_mj.eval.barn import BARN_SPEED, barn_score, optimal_path_length, widest_disc
+from sanav_mj.footprint import robot_footprint
+from sanav_mj.mapping import MapConfig, build_map
+from sanav_mj.planning import plan
+from sanav_mj.eval.episode import planner_config
+from sanav_mj.scene import load_scenario
+
+MARGIN = 0.05
+
+
+def _configs(text: str, radius: float) -> list[tuple[str, float, float]]:
+    out = []
+    for item in text.split(","):
+        margin, res = item.split("@")
+        out.append((f"m{margin}@{res}", radius + float(margin), float(res)))
+    return out
+
+
+def cmd_worlds(args) -> int:
+    rows = []
+    for path in args.scenarios:
+        s = load_scenario(path)
+        fp = robot_footprint(s.model)
+        length = optimal_path_length(s.obstacles, s.bounds, s.start, s.goal, fp.inradius)
+        row = {"scenario": s.name, "path": str(path), "L_m": length, "t_opt_s": length / BARN_SPEED,
+               "widest_disc_m": widest_disc(s.obstacles, s.bounds, s.start, s.goal)}
+        for name, infl, res in _configs(args.configs, s.robot.footprint_radius):
+            m = build_map(s.obstacles, s.bounds, infl, MapConfig(resolution=res))
+            p = plan(m.areas, s.start, s.goal, s.robot, planner_config(s.robot))
+            row[f"path_{name}"] = int(p.ok)
+        rows.append(row)
+        print(f"{s.name}: " + ", ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}"
+                                       for k, v in row.items() if k not in ("scenario", "path")), flush=True)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    with open(args.out, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    n = len(rows)
+    wd = np.array([r["widest_disc_m"] for r in rows])
+    radius = load_scenario(args.scenarios[0]).robot.footprint_radius
+    print(f"\n{n} worlds; widest passing disc radius [m]: min {wd.min():.3f}, median {np.median(wd):.3f}")
+    print(f"exact disc {radius:.3f} m passes in {int((wd >= radius).sum())}, disc + {MARGIN} m in "
+          f"{int((wd >= radius + MARGIN).sum())}")
+    for k in rows[0]:
+        if k.startswith("path_"):
+            print(f"planner finds a path with {k[5:]}: {sum(r[k] for r in rows)} of {n}")
+    return 0
+
+
+def cmd_score(args) -> int:
+    worlds = {}
+    with open(args.worlds) as f:
+        for r in csv.DictReader(f):
+            worlds[r["scenario"]] = float(r["t_opt_s"])
+    rows = list(csv.DictReader(open(args.bench / "results.csv")))
+    scores, out = [], []
+    for r in rows:
+        t_opt = worlds.get(r["scenario"])
+        if t_opt is None:
+            print(f"barn_eval: scenario {r['scenario']!r} of {args.bench / 'results.csv'} is not in {args.worlds}",
+                  file=sys.stderr)
+            return 2
+        ok = r["success"] == "True"
+        sc = barn_score(ok, float(r["sim_time_s"] or "nan") if ok else math.nan, t_opt)
+        scores.append(sc)
+        out.append({**{k: r[k] for k in ("scenario", "controller", "seed", "success", "reason", "sim_time_s", "collisions")},
+                    "t_opt_s": t_opt, "barn_score": sc})
+    with open(args.bench / "barn_scores.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(out[0]))
+        w.writeheader()
+        w.writerows(out)
+    by = {}
+    for r in out:
+        by.setdefault(r["controller"], []).append(r)
+    for ctl, rs in by.items():
+        succ = [r for r in rs if r["success"] == "True"]
+        reasons = {}
+        for r in rs:
+            reasons[r["reason"]] = reasons.get(r["reason"], 0) + 1
+        t = [float(r["sim_time_s"]) for r in succ]
+        print(f"{ctl}: {len(rs)} runs, success {len(succ)} ({100 * len(succ) / len(rs):.1f} %), "
+              f"collisions {sum(int(r['collisions'] or 0) > 0 for r in rs)}, outcomes {reasons}, "
+              f"mean time (successful) {np.mean(t) if t else float('nan'):.2f} s, "
+              f"mean BARN score {np.mean([r['barn_score'] for r in rs]):.3f}, "
+              f"successful only {np.mean([r['barn_score'] for r in succ]) if succ else float('nan'):.3f}")
+    return 0
+
+
+def _excursion(xy: np.ndarray, rects: np.ndarray) -> float:
+    """Largest distance [m] of the points (K, 2) outside the union of rects (R, 4); 0 if all inside."""
+    dx = np.maximum(np.maximum(rects[None, :, 0] - xy[:, None, 0], xy[:, None, 0] - rects[None, :, 2]), 0.0)
+    dy = np.maximum(np.maximum(rects[None, :, 1] - xy[:, None, 1], xy[:, None, 1] - rects[None, :, 3]), 0.0)
+    return float(np.hypot(dx, dy).min(axis=1).max()) if len(xy) else 0.0
+
+
+def cmd_closed_loop(args) -> int:
+    import json
+    from collections import Counter
+
+    import sanav_mj.eval.episode as episode
+    from sanav_mj.sim.mismatch import Mismatch
+
+    # Measurement knob: the run path has no margin argument, so the module default is set
+    # for this process only (prepare() reads it when it builds the map).
+    episode.DEFAULT_MARGIN_M = args.margin
+    mm = {}
+    for item in args.mismatch:
+        key, value = item.split("=", 1)
+        mm[key] = int(value) if key == "delay" else float(value)
+    mismatch = Mismatch(**mm)
+    t_opt = {r["scenario"]: float(r["t_opt_s"]) for r in csv.DictReader(open(args.worlds))}
+    rows = []
+    for path in args.scenarios:
+        d = episode.run_scenario(path, seed=0, resolution=args.resolution, mismatch=mismatch).document
+        exc = 0.0
+        if d["trace"]["x"]:
+            rects = np.asarray(episode.prepare(path, resolution=args.resolution).areas.rects)
+            exc = _excursion(np.column_stack([d["trace"]["x"], d["trace"]["y"]]), rects)
+        rows.append({"scenario": d["scenario"], "success": d["success"], "reason": d["reason"],
+                     "sim_time_s": d["sim_time_s"], "collisions": d["collisions"],
+                     "min_clearance_m": d["min_clearance_m"], "excursion_m": exc,
+                     "barn_score": barn_score(d["success"], d["sim_time_s"], t_opt[d["scenario"]])})
+        print(f"{d['scenario']}: {d['reason']} {d['sim_time_s']:.1f} s, excursion {exc:.4f} m", flush=True)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(rows, indent=1))
+    ok = [r for r in rows if r["success"]]
+    clr = [r["min_clearance_m"] for r in rows if r["min_clearance_m"] is not None]
+    print(f"margin {args.margin} m, cells {args.resolution} m, mismatch {mm}: success {len(ok)}/{len(rows)}, "
+          f"runs with collision {sum(r['collisions'] > 0 for r in rows)}, {dict(Counter(r['reason'] for r in rows))}, "
+          f"mean time (successful) {np.mean([r['sim_time_s'] for r in ok]) if ok else float('nan'):.2f} s, "
+          f"mean BARN score {np.mean([r['barn_score'] for r in rows]):.3f}, "
+          f"min clearance {min(clr) if clr else float('nan'):.3f} m, max excursion {max(r['excursion_m'] for r in rows):.4f} m")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="cmd", required=True)
+    w = sub.add_parser("worlds")
+    w.add_argument("scenarios", nargs="+", type=Path)
+    w.add_argument("--out", type=Path, required=True)
+    w.add_argument("--configs", default="0.05@0.05,0@0.05,0.05@0.025,0@0.025,0@0.0125",
+                   help="comma list MARGIN@RESOLUTION [m]; inflation = circumscribed radius + MARGIN")
+    s = sub.add_parser("score")
+    s.add_argument("bench", type=Path)
+    s.add_argument("--worlds", type=Path, required=True)
+    c = sub.add_parser("closed-loop")
+    c.add_argument("scenarios", nargs="+", type=Path)
+    c.add_argument("--worlds", type=Path, required=True)
+    c.add_argument("--margin", type=float, default=MARGIN)
+    c.add_argument("--resolution", type=float, default=0.05)
+    c.add_argument("--mismatch", nargs="*", default=[])
+    c.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args(argv)
+    try:
+        return {"worlds": cmd_worlds, "score": cmd_score, "closed-loop": cmd_closed_loop}[args.cmd](args)
+    except (OSError, ValueError, KeyError) as err:  # ScenarioError is a ValueError
+        print(f"barn_eval: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
