@@ -179,12 +179,20 @@ class RunResult:
             ``trace.poses()`` (S, 3) [m, m, rad], ``trace.cmd`` [(v [m/s], w [rad/s])], ...).
         prepared: the scenario, its map and the plan the run used.
         start: (3,) [m, m, rad] the start pose (yaw drawn from the seed unless given).
+        sensed: with ``sensing="lidar"``, the controller that drove
+            (:class:`~sanav_mj.control.sensing.SensingSAMPC`: its final ``map``, per-step
+            ``records``, ``replans``); None in map mode.
+        sensing_log: with ``sensing="lidar"`` and ``record_sensing=True``, the scans, map
+            frames and safe areas of the run (:class:`~sanav_mj.eval.episode.SensingLog`, what
+            a recording shows); else None.
     """
 
     document: dict[str, Any] = field(repr=False)
     episode: Episode = field(repr=False)
     prepared: Prepared = field(repr=False)
     start: np.ndarray
+    sensed: Any = field(default=None, repr=False)
+    sensing_log: Any = field(default=None, repr=False)
 
     @property
     def controller(self) -> str:
@@ -217,6 +225,7 @@ def run_scenario(
     time_limit_s: float = 60.0,
     rrd: str | Path | None = None,
     sensing: str = "map",
+    record_sensing: bool = False,
 ) -> RunResult:
     """Map, plan and drive one closed-loop episode in MuJoCo, like ``sanav-mj run``.
 
@@ -238,6 +247,8 @@ def run_scenario(
         sensing: ``"map"`` (the grid from the scenario's true geoms) or ``"lidar"`` (the
             robot knows only what its lidar has seen; SA-MPC only; docs/sensing.md). A lidar
             run's document gains ``"sensing"``, ``"map_update_ms"`` and ``"replans"``.
+        record_sensing: (lidar) keep what the run saw in ``RunResult.sensing_log``, for a
+            recording made afterwards with ``sanav_mj.record.record_episode``.
 
     Returns:
         A :class:`RunResult`; ``to_dict()`` is the ``run --json`` document.
@@ -272,5 +283,7 @@ def run_scenario(
         time_limit_s=float(time_limit_s),
         rrd=None if rrd is None else Path(rrd),
         sensing=sensing,
+        record_sensing=bool(record_sensing),
     )
-    return RunResult(document=out.document, episode=out.episode, prepared=out.prepared, start=out.start)
+    return RunResult(document=out.document, episode=out.episode, prepared=out.prepared, start=out.start,
+                     sensed=out.sensed, sensing_log=out.sensing_log)

@@ -505,18 +505,17 @@ def test_sensing_option_bad_input_exit_2_one_line(argv, fragment, capsys, tmp_pa
 
 
 def test_bench_and_robustness_pass_sensing_to_every_run(tmp_path, capsys, monkeypatch):
-    from sanav_mj.eval import bench, robustness
+    from sanav_mj.eval import bench
 
     seen = []
 
-    def fake(jobs, workers, desc, **kw):
+    def fake(jobs, workers, desc, **kw):  # bench and robustness both stream through bench.run_jobs
         jobs = list(jobs)
         seen.extend(jobs)
         return [{**_fake_doc(j), "sensing": j.sensing, "replans": 2,
                  "map_update_ms": {"mean": 1.0, "max": 2.0, "p99": 2.0}} for j in jobs]
 
     monkeypatch.setattr(bench, "run_jobs", fake)
-    monkeypatch.setattr(robustness, "run_jobs", fake)
     code, _, err = _run(["bench", "single_rect", "--controllers", "sa-mpc", "--runs", "2", "--sensing", "lidar",
                          "--out", str(tmp_path / "b")], capsys)
     assert code == 0, err
