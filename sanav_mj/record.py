@@ -75,6 +75,13 @@ Entity paths (world frame, metres; all 2D entities live under ``world``)
     At the end: ``summary`` (static TextDocument, markdown with the ``run --json``
     document without its trace).
 
+Sensing (``--sensing lidar`` runs, :meth:`Recorder.log_sensing`)
+    ``world/sensing/scan`` (Points2D per step: the scan's returns at the measured pose),
+    ``world/sensing/map`` (Image: unknown / free / occupied, only when it changed, at most
+    every 5 steps and at replans), ``world/sensing/safe_areas`` (Boxes2D, same schedule),
+    ``world/sensing/corridor`` (Boxes2D per step), ``plots/timing/map_update_ms``
+    (Scalars [ms]) and ``sensing/replans`` (TextLog).
+
 Cost: per-step data is not converted on every step; :meth:`Recorder.log_step` only notes
 how far the trace has grown and every ``flush_every`` steps the new rows are sent as
 columns (``send_columns``), one call per entity. Nothing static is ever re-logged.
