@@ -263,8 +263,18 @@ class SensingSAMPC:
         i = np.clip(np.floor((pts[:, 1] - g.origin[1]) / g.resolution).astype(np.int64), 0, ny - 1)
         return i * nx + j
 
+    def _in_ok_cells(self, pts: np.ndarray, ok_at) -> np.ndarray:
+        """(P,) bool: each point (P, 2) [m] lies in a cell that ``ok_at`` accepts, cells taken
+        as closed squares (a point on a cell edge, where the planner's closed rectangles put
+        samples, counts for either side)."""
+        e = 1e-6 * self.map.grid.resolution
+        out = np.zeros(len(pts), dtype=bool)
+        for dx, dy in ((-e, -e), (-e, e), (e, -e), (e, e)):
+            out |= ok_at(self._cells(pts + np.array([dx, dy])))
+        return out
+
     def _route_clear(self) -> bool:
-        return bool(self.map.grid.route_safe_at(self._cells(self.route)).all())
+        return bool(self._in_ok_cells(self.route, self.map.grid.route_safe_at).all())
 
     def _replan(self, pose: np.ndarray, speed: float = 0.0) -> bool:
         """Plan route and local corridor from ``pose`` with the reference starting at the
@@ -272,8 +282,10 @@ class SensingSAMPC:
         route_plan = make_plan(self._route_areas, pose, self.goal, self.robot, self.planner) \
             if self._route_areas is not None else None
         if route_plan is not None and route_plan.ok and route_plan.reference is not None:
+            # the reference samples only: they end at the plan's goal (the goal projected
+            # into the route areas when it lies within the inflation of an obstacle), so a
+            # goal close to an obstacle does not make the route look blocked at every step
             route = route_plan.reference.states[:, :2]
-            route = np.vstack([route, self.goal[None]])
         else:
             route = None  # no route even through unknown space: head for the goal's projection
         target = self._local_goal(route)
@@ -295,7 +307,7 @@ class SensingSAMPC:
         the whole route is safe); None when the route does not start in safe cells."""
         if route is None:
             return self.goal.copy()
-        safe = self.map.grid.safe_at(self._cells(route))
+        safe = self._in_ok_cells(route, self.map.grid.safe_at)
         if safe.all():
             return self.goal.copy()
         first = int(np.argmax(safe))

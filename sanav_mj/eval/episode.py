@@ -422,7 +422,10 @@ def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, reso
             outside.append(safe_area_violations(np.asarray(trace.pose[step])[None, :2], ctrl.areas.rects))
 
     hook = _chain(_chain(violations, log.hook(ctrl, lcfg.offset) if log is not None else None), on_step)
+    from sanav_mj.sim.termination import ReplannedRouteProgress
+
     episode = run_episode(plant, ctrl, start, scenario.goal, cfg, mismatch, rng,
+                          progress=ReplannedRouteProgress(lambda: ctrl.route, scenario.goal),
                           on_step=hook, scan=lambda: lidar.scan(plant.data, lidar_rng),
                           scan_period_s=lcfg.period)
     doc = episode_json(episode, scenario=scenario.name, controller=cspec.name, seed=seed, start=start,

@@ -148,6 +148,7 @@ def run_episode(
     route: np.ndarray | None = None,
     scan: Callable[[], object] | None = None,
     scan_period_s: float | None = None,
+    progress: Progress | None = None,
 ) -> Episode:
     """Run one closed-loop episode.
 
@@ -175,6 +176,9 @@ def run_episode(
             once per control step, at the sensor's rate ``1 / scan_period_s`` (with the
             default ``None`` period: every step). Its wall time is part of ``pipeline_ms``.
         scan_period_s: [s] time between scans.
+        progress: the ``stuck`` rule's progress measure, instead of the one ``route``
+            implies (e.g. :class:`~sanav_mj.sim.termination.ReplannedRouteProgress` for a
+            controller that replans).
 
     Returns:
         The :class:`Episode` with its trace.
@@ -186,7 +190,8 @@ def run_episode(
     controller.reset(plant.pose())
     trace = EpisodeTrace()
     delay_line: deque[tuple[float, float]] = deque([(0.0, 0.0)] * mismatch.delay)
-    progress: Progress | None = RouteProgress(route) if route is not None else None
+    if progress is None and route is not None:
+        progress = RouteProgress(route)
     rules = Termination(config, dt, goal, progress)
     last_valid = plant.pose()
     bad_streak = 0
