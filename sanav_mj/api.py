@@ -179,12 +179,20 @@ class RunResult:
             ``trace.poses()`` (S, 3) [m, m, rad], ``trace.cmd`` [(v [m/s], w [rad/s])], ...).
         prepared: the scenario, its map and the plan the run used.
         start: (3,) [m, m, rad] the start pose (yaw drawn from the seed unless given).
+        sensed: with ``sensing="lidar"``, the controller that drove
+            (:class:`~sanav_mj.control.sensing.SensingSAMPC`: its final ``map``, per-step
+            ``records``, ``replans``); None in map mode.
+        sensing_log: with ``sensing="lidar"`` and ``record_sensing=True``, the scans, map
+            frames and safe areas of the run (:class:`~sanav_mj.eval.episode.SensingLog`, what
+            a recording shows); else None.
     """
 
     document: dict[str, Any] = field(repr=False)
     episode: Episode = field(repr=False)
     prepared: Prepared = field(repr=False)
     start: np.ndarray
+    sensed: Any = field(default=None, repr=False)
+    sensing_log: Any = field(default=None, repr=False)
 
     @property
     def controller(self) -> str:
@@ -216,6 +224,8 @@ def run_scenario(
     resolution: float = 0.05,
     time_limit_s: float = 60.0,
     rrd: str | Path | None = None,
+    sensing: str = "map",
+    record_sensing: bool = False,
 ) -> RunResult:
     """Map, plan and drive one closed-loop episode in MuJoCo, like ``sanav-mj run``.
 
@@ -234,6 +244,11 @@ def run_scenario(
         resolution: [m] grid cell edge (0.005 to 1.0).
         time_limit_s: [s] simulated time after which the run ends with ``timeout`` (> 0).
         rrd: write a rerun recording of the run to this path.
+        sensing: ``"map"`` (the grid from the scenario's true geoms) or ``"lidar"`` (the
+            robot knows only what its lidar has seen; SA-MPC only; docs/sensing.md). A lidar
+            run's document gains ``"sensing"``, ``"map_update_ms"`` and ``"replans"``.
+        record_sensing: (lidar) keep what the run saw in ``RunResult.sensing_log``, for a
+            recording made afterwards with ``sanav_mj.record.record_episode``.
 
     Returns:
         A :class:`RunResult`; ``to_dict()`` is the ``run --json`` document.
@@ -245,6 +260,10 @@ def run_scenario(
     else:
         raise ValueError(f"controller: expected one of {', '.join(CONTROLLER_NAMES)} or a ControllerSpec, "
                          f"got {controller!r}")
+    if sensing not in ("map", "lidar"):
+        raise ValueError(f"sensing: expected 'map' or 'lidar', got {sensing!r}")
+    if sensing == "lidar" and spec.name != "sa-mpc":
+        raise ValueError(f"sensing: 'lidar' is supported for controller 'sa-mpc' only, got controller {spec.name!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= 2**31 - 1:
         raise ValueError(f"seed: expected an integer 0 <= seed < 2**31, got {seed!r}")
     if yaw is not None and (isinstance(yaw, bool) or not isinstance(yaw, (int, float)) or not math.isfinite(yaw)):
@@ -263,5 +282,8 @@ def run_scenario(
         mismatch=_mismatch(mismatch),
         time_limit_s=float(time_limit_s),
         rrd=None if rrd is None else Path(rrd),
+        sensing=sensing,
+        record_sensing=bool(record_sensing),
     )
-    return RunResult(document=out.document, episode=out.episode, prepared=out.prepared, start=out.start)
+    return RunResult(document=out.document, episode=out.episode, prepared=out.prepared, start=out.start,
+                     sensed=out.sensed, sensing_log=out.sensing_log)

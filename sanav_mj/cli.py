@@ -153,6 +153,8 @@ def build_parser() -> argparse.ArgumentParser:
     controller_help = "controller: sa-mpc (the paper's), mpc (obstacle-penalty NMPC), dwa, dqn (default: %(default)s)"
     workers_help = "worker processes, 1..64 (default: %(default)s)"
     # (the metavars name the unit: M metres, S seconds, RAD radians, N a count)
+    sensing_help = ("map: the grid from the scenario's true geoms; lidar: the robot maps with its own lidar "
+                    "as it drives (sa-mpc only) (default: %(default)s)")
     resume_help = ("keep the finished runs journalled in OUT/runs.jsonl (same settings) and run the rest "
                    "(default: start afresh)")
 
@@ -160,16 +162,37 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", type=_output_arg("--out"), default=Path("out/demo"), metavar="DIR",
                    help="output folder (default: %(default)s)")
     d.add_argument("--no-rrd", action="store_true", help="skip the rerun recordings (default: write them)")
+    d.add_argument("--sensing", choices=SENSING, default="map", help=sensing_help)
 
-    a = sub.add_parser("areas", help="grid, quadtree, safe areas, graph and reference of a scenario")
-    a.add_argument("scenario", help=scenario_help)
+    map_help = scenario_help + ", or a ROS map_server map (.yaml) with --start and --goal"
+    start_help = "start pose x [m] y [m] yaw [rad] on a ROS map (.yaml) (default: none)"
+    goal_help = "goal x [m] y [m] on a ROS map (.yaml) (default: none)"
+
+    sc = sub.add_parser("scenario", help="make a scenario MJCF from a ROS map_server map with a start and a goal")
+    sc.add_argument("map", help="ROS map_server map: a YAML file naming a PGM or PNG image")
+    sc.add_argument("--start", type=_float_arg("--start"), nargs=3, required=True, metavar=("X", "Y", "YAW"),
+                    help="start pose x [m] y [m] yaw [rad] (required, no default)")
+    sc.add_argument("--goal", type=_float_arg("--goal"), nargs=2, required=True, metavar=("X", "Y"),
+                    help="goal x [m] y [m] (required, no default)")
+    sc.add_argument("-o", "--out", type=_output_arg("--out"), required=True, metavar="FILE",
+                    help="the scenario MJCF file to write (required, no default)")
+
+    a = sub.add_parser("areas", help="grid, quadtree, safe areas, graph and reference of a scenario or ROS map")
+    a.add_argument("scenario", help=scenario_help + ", or a ROS map_server map (.yaml; with --start and "
+                                                    "--goal also the corridor and reference)")
+    a.add_argument("--start", type=_float_arg("--start"), nargs=3, default=None, metavar=("X", "Y", "YAW"),
+                   help=start_help)
+    a.add_argument("--goal", type=_float_arg("--goal"), nargs=2, default=None, metavar=("X", "Y"), help=goal_help)
     a.add_argument("--json", type=_output_arg("--json"), metavar="FILE", help="write the areas JSON here (default: none)")
     a.add_argument("--plot", type=_plot_arg, metavar="FILE", help="write a figure of the map here; format from the extension: "
                                                   ".png (also without one), .pdf, .svg, ... (default: none)")
     a.add_argument("--resolution", type=_resolution, default=0.05, metavar="M", help=resolution_help)
 
     r = sub.add_parser("run", help="one closed-loop run")
-    r.add_argument("scenario", help=scenario_help)
+    r.add_argument("scenario", help=map_help)
+    r.add_argument("--start", type=_float_arg("--start"), nargs=3, default=None, metavar=("X", "Y", "YAW"),
+                   help=start_help)
+    r.add_argument("--goal", type=_float_arg("--goal"), nargs=2, default=None, metavar=("X", "Y"), help=goal_help)
     r.add_argument("--controller", choices=CONTROLLERS, default="sa-mpc", help=controller_help)
     r.add_argument("--seed", type=_count("--seed", 0, 2**31 - 1), default=0, metavar="N",
                    help="seed of the initial yaw, noise and jitter, 0..2^31-1 (default: %(default)s)")
@@ -181,6 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--plot", type=_plot_arg, metavar="FILE", help="write a figure of the run here; format from the extension: "
                                                   ".png (also without one), .pdf, .svg, ... (default: none)")
     r.add_argument("--mismatch", nargs="+", default=[], metavar="KEY=VALUE", help=mismatch_help())
+    r.add_argument("--sensing", choices=SENSING, default="map", help=sensing_help)
     r.add_argument("--time-limit", type=_time_limit, default=60.0, metavar="S",
                    help=f"simulated time limit [s], 0 < S <= {MAX_TIME_LIMIT_S:g} (default: %(default)s)")
 
@@ -195,6 +219,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="output folder (default: %(default)s)")
     b.add_argument("--rrd", action="store_true", help="also record each run to OUT/rrd/ (default: no)")
     b.add_argument("--resume", action="store_true", help=resume_help)
+    b.add_argument("--sensing", choices=SENSING, default="map", help=sensing_help)
     b.add_argument("--ray", nargs="?", const=True, default=None, metavar="ADDRESS",
                    type=_ray_address, help=RAY_HELP)
 
@@ -216,6 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
     rb.add_argument("--out", type=_output_arg("--out"), default=Path("out/robustness"), metavar="DIR",
                     help="output folder (default: %(default)s)")
     rb.add_argument("--resume", action="store_true", help=resume_help)
+    rb.add_argument("--sensing", choices=SENSING, default="map", help=sensing_help)
     rb.add_argument("--ray", nargs="?", const=True, default=None, metavar="ADDRESS",
                    type=_ray_address, help=RAY_HELP)
     return p
@@ -314,13 +340,70 @@ def _check_outputs(named: dict[str, Path | None]) -> None:
             raise BadInput(f"{name} {path}: cannot write in {folder} (permission denied)")
 
 
+#: the ``--sensing`` choices
+SENSING = ("map", "lidar")
+
+
+def _check_sensing(sensing: str, controllers: list[str], option: str = "--controller") -> None:
+    """``--sensing lidar`` runs SA-MPC only; any other controller is bad input (exit 2)."""
+    other = [c for c in controllers if c != "sa-mpc"]
+    if sensing == "lidar" and other:
+        raise BadInput(f"--sensing lidar: supported for the sa-mpc controller only, got {option} {' '.join(other)}")
+
+
+def _scenario_of(args):
+    """The scenario argument: a path or name as given, or the Scenario made from a ROS map
+    with ``--start`` / ``--goal`` (both required then; both refused for an MJCF scenario)."""
+    from sanav_mj.eval.maps import is_ros_map, scenario_from_ros_map
+
+    given = [o for o, v in (("--start", args.start), ("--goal", args.goal)) if v is not None]
+    if not is_ros_map(args.scenario):
+        if given:
+            raise BadInput(f"{' and '.join(given)}: only for a ROS map (.yaml); {args.scenario} is a scenario "
+                           "with its own start and goal")
+        return args.scenario
+    missing = [o for o in ("--start", "--goal") if o not in given]
+    if missing:
+        raise BadInput(f"{args.scenario}: a ROS map needs {' and '.join(missing)} to make a scenario")
+    return scenario_from_ros_map(args.scenario, args.start, args.goal)
+
+
+def _cmd_scenario(args) -> int:
+    from sanav_mj.eval.maps import is_ros_map, ros_scenario_xml, scenario_from_ros_map
+    from sanav_mj.outputs import write_text
+
+    if not is_ros_map(args.map):
+        raise BadInput(f"{args.map}: expected a ROS map_server map (.yaml)")
+    _check_outputs({"--out": args.out})
+    sc = scenario_from_ros_map(args.map, args.start, args.goal)  # checks start and goal first
+    xml = ros_scenario_xml(args.map, args.start, args.goal)
+    write_text(args.out, xml)
+    print(f"{args.out}: scenario {sc.name} from {args.map}, {len(sc.obstacles)} obstacles, workspace "
+          f"{sc.bounds[2] - sc.bounds[0]:.2f} x {sc.bounds[3] - sc.bounds[1]:.2f} m")
+    return 0
+
+
 def _cmd_areas(args) -> int:
     from sanav_mj.eval.episode import areas_document, prepare
+    from sanav_mj.eval.maps import is_ros_map, ros_areas_document
 
     outputs = {"--json": args.json, "--plot": args.plot}
     _distinct_outputs(outputs)
     _check_outputs(outputs)
-    prep = prepare(args.scenario, resolution=args.resolution)
+    if is_ros_map(args.scenario) and args.start is None and args.goal is None:
+        if args.plot is not None:
+            raise BadInput("--plot: a ROS map is plotted with its corridor; give --start and --goal")
+        doc = ros_areas_document(args.scenario)
+        t = doc["timing_ms"]
+        try:
+            print(f"{doc['scenario']}: grid {doc['grid']['shape'][1]}x{doc['grid']['shape'][0]} @ "
+                  f"{doc['grid']['resolution']} m (the map's), leaves {doc['leaves']['free']} free / "
+                  f"{doc['leaves']['occupied']} occupied, {len(doc['rects'])} safe areas, {len(doc['edges'])} edges, "
+                  f"{t['total']:.2f} ms")
+        finally:
+            _write_outputs([(args.json, lambda: _write_json(args.json, doc))])
+        return 0
+    prep = prepare(_scenario_of(args), resolution=args.resolution)
     doc = areas_document(prep)
 
     def plot() -> None:
@@ -346,17 +429,20 @@ def _cmd_run(args) -> int:
     from sanav_mj.sim.mismatch import parse_mismatch
 
     mismatch = parse_mismatch(args.mismatch)
+    _check_sensing(args.sensing, [args.controller])
     outputs = {"--json": args.json, "--rrd": args.rrd, "--plot": args.plot}
     _distinct_outputs(outputs)
     _check_outputs(outputs)
     out = run_scenario(
-        args.scenario,
+        _scenario_of(args),
         controller=args.controller,
         seed=args.seed,
         yaw=args.yaw,
         resolution=args.resolution,
         mismatch=mismatch,
         time_limit_s=args.time_limit,
+        sensing=args.sensing,
+        record_sensing=args.rrd is not None,
     )
     doc = out.to_dict()  # exactly what ``run_scenario(...).to_dict()`` gives
 
@@ -419,6 +505,10 @@ def run_line(doc: dict) -> str:
             parts.append(f"{label} {doc[key]}")
     if doc.get("mismatch"):
         parts.append("mismatch " + " ".join(f"{k}={_num(v)}" for k, v in doc["mismatch"].items()))
+    if doc.get("sensing") == "lidar":
+        mu, pipe = doc.get("map_update_ms") or {}, doc.get("pipeline_ms") or {}
+        parts.append(f"lidar: {doc.get('replans')} replans, map update {mu.get('mean', float('nan')):.2f} ms mean, "
+                     f"pipeline {pipe.get('mean', float('nan')):.2f} ms mean / {pipe.get('p99', float('nan')):.2f} ms p99")
     solve = doc.get("solve_ms") or {}
     if doc.get("steps") and solve.get("mean") is not None:
         parts.append(f"solve {solve['mean']:.2f} ms mean / {solve.get('p99', float('nan')):.2f} ms p99")
@@ -429,7 +519,7 @@ def _cmd_demo(args) -> int:
     from sanav_mj.eval.demo import run_demo, summary_table
 
     _check_out_dir(args.out)
-    result = run_demo(args.out, record=not args.no_rrd)
+    result = run_demo(args.out, record=not args.no_rrd, sensing=args.sensing)
     print(summary_table(result.rows), end="")
     kinds = "recordings (.rrd), plots (.png) and JSON" if not args.no_rrd else "plots (.png) and JSON (no recordings: --no-rrd)"
     print(f"wrote {kinds} to {args.out}/" if not result.failed else
@@ -444,10 +534,11 @@ def _cmd_demo(args) -> int:
 def _cmd_bench(args) -> int:
     from sanav_mj.eval.bench import markdown_table, run_bench
 
+    _check_sensing(args.sensing, args.controllers, "--controllers")
     _check_scenarios(args.scenarios)
     _check_out_dir(args.out)
     summary = run_bench(args.scenarios, args.controllers, args.runs, args.workers, args.out, record=args.rrd,
-                        resume=args.resume, ray=args.ray)
+                        resume=args.resume, ray=args.ray, sensing=args.sensing)
     print(markdown_table(summary), end="")
     print(f"wrote {args.out}/results.csv, table.md, success.png")
     return _raised_runs(summary, args.out / "results.csv")
@@ -489,6 +580,7 @@ def _cmd_robustness(args) -> int:
 
     sweep = parse_sweep(args.sweep)
     fixed = _parse_fixed(args.fixed, sweep)
+    _check_sensing(args.sensing, [args.controller])
     _check_scenarios(args.scenarios)
     _check_out_dir(args.out)
     default = " (the default; choose with --sweep KEY=V1,V2,...)" if args.sweep == list(DEFAULT_SWEEP) else ""
@@ -496,7 +588,8 @@ def _cmd_robustness(args) -> int:
     print(f"robustness: sweeping {grid}{default}, {args.seeds} seed(s) per point and scenario, controller "
           f"{args.controller}" + (f", fixed {' '.join(args.fixed)}" if args.fixed else ""), flush=True)
     summary = run_robustness(args.scenarios, sweep, args.seeds, args.controller, args.workers, args.out,
-                             time_limit_s=args.time_limit, fixed=fixed, resume=args.resume, ray=args.ray)
+                             time_limit_s=args.time_limit, fixed=fixed, resume=args.resume, ray=args.ray,
+                             sensing=args.sensing)
     for row in summary:  # a quantity with no value (NaN: no run ran, or none has a clearance) is n/a
         print("  ".join(f"{k}={'n/a' if math.isnan(v) else format(v, '.3g')}" if isinstance(v, float) else f"{k}={v}"
                         for k, v in row.items()))
@@ -520,6 +613,7 @@ def main(argv: list[str] | None = None) -> int:
             return int(exc.code or 0)
         handler = {
             "areas": _cmd_areas,
+            "scenario": _cmd_scenario,
             "run": _cmd_run,
             "demo": _cmd_demo,
             "bench": _cmd_bench,

@@ -75,6 +75,13 @@ Entity paths (world frame, metres; all 2D entities live under ``world``)
     At the end: ``summary`` (static TextDocument, markdown with the ``run --json``
     document without its trace).
 
+Sensing (``--sensing lidar`` runs, :meth:`Recorder.log_sensing`)
+    ``world/sensing/scan`` (Points2D per step: the scan's returns at the measured pose),
+    ``world/sensing/map`` (Image: unknown / free / occupied, only when it changed, at most
+    every 5 steps and at replans), ``world/sensing/safe_areas`` (Boxes2D, same schedule),
+    ``world/sensing/corridor`` (Boxes2D per step), ``plots/timing/map_update_ms``
+    (Scalars [ms]) and ``sensing/replans`` (TextLog).
+
 Cost: per-step data is not converted on every step; :meth:`Recorder.log_step` only notes
 how far the trace has grown and every ``flush_every`` steps the new rows are sent as
 columns (``send_columns``), one call per entity. Nothing static is ever re-logged.
@@ -124,6 +131,10 @@ _C_MEASURED = (120, 220, 255, 255)
 _C_HORIZON = (60, 255, 120, 255)
 _C_HORIZON_BAD = (255, 40, 40, 255)
 _C_COLLISION = (255, 0, 0, 255)
+_C_SCAN = (255, 60, 200, 255)
+_C_UNKNOWN = (40, 40, 60, 120)
+_C_FREE = (235, 235, 235, 70)
+_C_OCCUPIED = (20, 20, 20, 230)
 
 # Draw order of 2D layers (higher is drawn on top).
 _Z_GRID, _Z_LEAVES, _Z_AREAS, _Z_GRAPH, _Z_CORRIDOR, _Z_PLAN, _Z_OBST = -20.0, -15.0, -10.0, -8.0, -6.0, -4.0, -2.0
@@ -319,6 +330,7 @@ class Recorder:
         self._n_areas = int(np.asarray(prep.areas.rects).reshape(-1, 4).shape[0])
         self._rects = np.asarray(prep.areas.rects, dtype=float).reshape(-1, 4)
         self._sent = 0  # trace rows already sent
+        self._times: list[float] | None = None  # step start times for log_sensing
         self._last_status: str | None = None
         self._closed = False
         import rerun as rr
@@ -601,6 +613,75 @@ class Recorder:
             rec.send_columns("world/horizon/rects", tcols, rr.Boxes2D.columns(
                 centers=c, half_sizes=h, labels=labels).partition(counts))
 
+    # ------------------------------------------------------------------ sensing
+    def log_sensing(self, log: Any, records: Any) -> None:
+        """Record what a lidar run saw (see "Sensing" in the module docstring).
+
+        Args:
+            log: the run's :class:`~sanav_mj.eval.episode.SensingLog` (scans, map frames,
+                safe-area frames).
+            records: the controller's per-step
+                :class:`~sanav_mj.control.sensing.StepRecord` list (corridor, replans,
+                map update time).
+        """
+        import rerun as rr
+
+        rec = self.rec
+
+        def tcols(steps: list[int]) -> list[rr.TimeColumn]:
+            steps = [int(k) for k in steps]
+            return [rr.TimeColumn(TIMELINE_STEP, sequence=steps),
+                    rr.TimeColumn(TIMELINE_TIME, duration=[self._step_time(k) for k in steps])]
+
+        steps = [k for k, p in enumerate(log.scan_points) if p is not None]
+        if steps:
+            pts = [log.scan_points[k] for k in steps]
+            rec.log("world/sensing/scan", rr.Points2D.from_fields(colors=_C_SCAN, radii=0.02, draw_order=_Z_HORIZON),
+                    static=True)
+            rec.send_columns("world/sensing/scan", tcols(steps), rr.Points2D.columns(
+                positions=np.concatenate(pts) if pts else np.zeros((0, 2))).partition([len(p) for p in pts]))
+        res = float(log.resolution)
+        rec.log("world/sensing/map", rr.Transform3D(translation=[float(log.origin[0]), float(log.origin[1]), 0.0],
+                                                    scale=[res, res, 1.0]), static=True)
+        for k, states in log.map_frames:
+            rgba = np.zeros(states.shape + (4,), dtype=np.uint8)
+            rgba[states == 0] = _C_UNKNOWN
+            rgba[states == 1] = _C_FREE
+            rgba[states == 2] = _C_OCCUPIED
+            rec.set_time(TIMELINE_STEP, sequence=int(k))
+            rec.set_time(TIMELINE_TIME, duration=self._step_time(k))
+            rec.log("world/sensing/map", rr.Image(rgba, color_model="RGBA", draw_order=_Z_GRID + 1))
+        for k, rects in log.area_frames:
+            c, h = _centers_half(rects)
+            rec.set_time(TIMELINE_STEP, sequence=int(k))
+            rec.set_time(TIMELINE_TIME, duration=self._step_time(k))
+            rec.log("world/sensing/safe_areas", rr.Boxes2D(centers=c, half_sizes=h, colors=_C_AREA, radii=0.01,
+                                                           draw_order=_Z_AREAS + 1))
+        rec.reset_time()
+        n = len(records)
+        if n:
+            corr = [np.asarray(r.corridor_rects, float).reshape(-1, 4) for r in records]
+            ch = [(_centers_half(c) if len(c) else (np.zeros((0, 2)), np.zeros((0, 2)))) for c in corr]
+            rec.log("world/sensing/corridor", rr.Boxes2D.from_fields(colors=_C_CORRIDOR, radii=0.02,
+                                                                     draw_order=_Z_CORRIDOR), static=True)
+            rec.send_columns("world/sensing/corridor", tcols(list(range(n))), rr.Boxes2D.columns(
+                centers=np.concatenate([c for c, _ in ch]), half_sizes=np.concatenate([h for _, h in ch])
+            ).partition([len(c) for c in corr]))
+            mu = [k for k, r in enumerate(records) if r.map_ms is not None]
+            if mu:
+                rec.send_columns("plots/timing/map_update_ms", tcols(mu), rr.Scalars.columns(
+                    scalars=[records[k].map_ms for k in mu]))
+            rp = [k for k, r in enumerate(records) if r.replan is not None]
+            if rp:
+                rec.send_columns("sensing/replans", tcols(rp), rr.TextLog.columns(
+                    text=[f"replan: {records[k].replan} ({records[k].replan_ms:.1f} ms)" for k in rp],
+                    level=[rr.TextLogLevel.INFO] * len(rp)))
+
+    def _step_time(self, k: int) -> float:
+        """[s] simulated time of step ``k`` (``k dt`` of the recorded trace when known)."""
+        t = self._times
+        return float(t[k]) if t is not None and 0 <= k < len(t) else float(k) * 0.1
+
     # ------------------------------------------------------------------ end
     def finish(self, episode: Any, document: dict[str, Any]) -> None:
         """Send the remaining steps, the final pose and the summary; close the file.
@@ -689,6 +770,10 @@ def record_episode(path: str | Path, outcome: Any, config: RecordConfig = Record
     """
     rec = Recorder(path, outcome.prepared, outcome.controller, config)
     try:
+        log = getattr(outcome, "sensing_log", None)
+        if log is not None:
+            rec._times = list(outcome.episode.trace.t)
+            rec.log_sensing(log, outcome.sensed.records)
         rec.finish(outcome.episode, outcome.document)
     except BaseException:
         rec.discard()

@@ -135,6 +135,31 @@ def test_readme_python_section_runs(capsys):
     assert capsys.readouterr().out.strip()
 
 
+def test_lidar_run_document_is_the_cli_json(tmp_path):
+    """``sensing="lidar"`` gives the ``run --sensing lidar --json`` document (deterministic for a
+    seed apart from the wall-clock fields), with its sensing fields."""
+    out = tmp_path / "run.json"
+    code = cli_main(["run", "single_rect", "--seed", "1", "--sensing", "lidar", "--json", str(out)])
+    doc = sanav_mj.run_scenario("single_rect", seed=1, sensing="lidar").to_dict()
+    written = json.loads(out.read_text())
+    assert code == 0 and doc["success"]
+    assert set(doc) == set(written) and {"sensing", "map_update_ms", "replans"} <= set(doc)
+    def strip(d):  # map_update_ms is wall clock too
+        return {k: v for k, v in strip_wall_clock(d).items() if k != "map_update_ms"}
+
+    assert strip(json.loads(json.dumps(doc))) == strip(written)
+    assert doc["sensing"] == "lidar" and doc["replans"] == written["replans"]
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"sensing": "radar"}, "sensing"),
+    ({"sensing": "lidar", "controller": "dwa"}, "sa-mpc"),
+])
+def test_bad_sensing_arguments(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        sanav_mj.run_scenario("single_rect", **kwargs)
+
+
 def test_controller_spec_is_public_and_drives_the_run():
     """A ControllerSpec given to run_scenario is the one the controller uses: the default spec
     gives the same document as the name, a spec with another horizon gives another trace."""

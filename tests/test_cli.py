@@ -200,7 +200,7 @@ def test_run_result_is_printed_and_kept_when_an_output_fails(tmp_path, capsys):
 def test_an_os_error_mid_way_is_one_line(tmp_path, monkeypatch, capsys):
     from sanav_mj.eval import demo
 
-    def full_disk(out, record):  # raised by run_demo itself (not an output it notes)
+    def full_disk(out, record, sensing="map"):  # raised by run_demo itself (not an output it notes)
         raise OSError(28, "No space left on device", "out/demo/u_shape.json")
 
     monkeypatch.setattr(demo, "run_demo", full_disk)
@@ -464,7 +464,7 @@ def test_demo_without_recordings_does_not_say_it_wrote_them(tmp_path, capsys, mo
 
     seen = {}
 
-    def fake(out, record):
+    def fake(out, record, sensing="map"):
         seen["record"] = record
         return demo.DemoResult(rows=[{k: v for k, v in _doc().items()}])
 
@@ -480,7 +480,7 @@ def test_demo_without_recordings_does_not_say_it_wrote_them(tmp_path, capsys, mo
 def test_demo_output_that_fails_is_one_line_after_the_table(tmp_path, capsys, monkeypatch):
     from sanav_mj.eval import demo
 
-    def fake(out, record):
+    def fake(out, record, sensing="map"):
         return demo.DemoResult(rows=[_doc()], written=[out / "a.json"],
                                failed=[OSError(28, "No space left on device", str(out / "u_shape.rrd"))])
 
@@ -488,6 +488,48 @@ def test_demo_output_that_fails_is_one_line_after_the_table(tmp_path, capsys, mo
     code, out, err = _run(["demo", "--out", str(tmp_path)], capsys)
     assert code == 2 and "| u_shape | goal |" in out
     assert err == f"sanav-mj: error: {tmp_path / 'u_shape.rrd'}: cannot write (No space left on device)\n"
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["bench", "single_rect", "--sensing", "lidar"], "--sensing lidar"),  # default controllers: all four
+    (["robustness", "single_rect", "--sensing", "lidar", "--controller", "mpc"], "--controller mpc"),
+    (["run", "single_rect", "--sensing", "lidar", "--controller", "dqn"], "sa-mpc"),
+    (["run", "single_rect", "--sensing", "sonar"], "--sensing"),
+    (["demo", "--sensing", "both"], "--sensing"),
+])
+def test_sensing_option_bad_input_exit_2_one_line(argv, fragment, capsys, tmp_path):
+    code, out, err = _run(argv + (["--out", str(tmp_path / "o")] if argv[0] in ("bench", "robustness", "demo")
+                                  else []), capsys)
+    assert code == 2 and err.count("\n") == 1 and fragment in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_bench_and_robustness_pass_sensing_to_every_run(tmp_path, capsys, monkeypatch):
+    from sanav_mj.eval import bench
+
+    seen = []
+
+    def fake(jobs, workers, desc, **kw):  # bench and robustness both stream through bench.run_jobs
+        jobs = list(jobs)
+        seen.extend(jobs)
+        return [{**_fake_doc(j), "sensing": j.sensing, "replans": 2,
+                 "map_update_ms": {"mean": 1.0, "max": 2.0, "p99": 2.0}} for j in jobs]
+
+    monkeypatch.setattr(bench, "run_jobs", fake)
+    code, _, err = _run(["bench", "single_rect", "--controllers", "sa-mpc", "--runs", "2", "--sensing", "lidar",
+                         "--out", str(tmp_path / "b")], capsys)
+    assert code == 0, err
+    code, _, err = _run(["robustness", "single_rect", "--seeds", "1", "--sweep", "delay=0,1", "--sensing", "lidar",
+                         "--out", str(tmp_path / "r")], capsys)
+    assert code == 0, err
+    assert len(seen) == 4 and {j.sensing for j in seen} == {"lidar"}
+    for folder in ("b", "r"):
+        assert json.loads((tmp_path / folder / "meta.json").read_text())["sensing"] == "lidar"
+    # map-mode journal keys are unchanged; lidar keys say so
+    from sanav_mj.eval.campaign import Job, job_key
+
+    assert job_key(Job("u_shape", "sa-mpc", 0)) == '["u_shape","sa-mpc",0,[],60.0]'
+    assert job_key(Job("u_shape", "sa-mpc", 0, sensing="lidar")) == '["u_shape","sa-mpc",0,[],60.0,"lidar"]'
 
 
 def test_run_is_a_thin_layer_over_the_python_api(tmp_path, capsys, monkeypatch):

@@ -405,3 +405,32 @@ def test_cli_run_writes_a_recording_of_every_step(tmp_path):
                                atol=0.5 * float(np.spacing(np.float32(np.abs(doc["trace"]["x"]).max()))))
     res = rrd_verify(rrd)
     assert res.returncode == 0, res.stderr
+
+
+def test_lidar_run_records_scans_growing_map_and_safe_areas(tmp_path):
+    """A --sensing lidar recording: the scan of every step, the sensed map (unknown / free /
+    occupied) only when it changed, the safe areas as they grow, the corridor of every step."""
+    from sanav_mj.eval.episode import run_scenario
+
+    path = tmp_path / "lidar.rrd"
+    out = run_scenario("single_rect", seed=0, sensing="lidar", rrd=path)
+    ents = read_rrd(path)
+    n = out.document["steps"]
+    log = out.sensing_log
+    scans = ents["/world/sensing/scan"]
+    assert sorted(scans["steps"]) == list(range(n))  # one scan per control step
+    order = np.argsort(scans["steps"])
+    counts = [len(scans["data"]["Points2D:positions"][i]) for i in order]
+    assert counts == [len(p) for p in log.scan_points] and sum(counts) > 0  # returns only
+    frames = ents["/world/sensing/map"]
+    assert sorted(frames["steps"]) == [k for k, _ in log.map_frames]
+    assert 2 <= len(log.map_frames) <= n // log.every + 2 + out.document["replans"] + 1
+    # each logged frame differs from the previous one, and the known area grows overall
+    for (_, a), (_, b) in zip(log.map_frames, log.map_frames[1:]):
+        assert not np.array_equal(a, b)
+    assert (log.map_frames[-1][1] != 0).sum() > (log.map_frames[0][1] != 0).sum()
+    assert sorted(ents["/world/sensing/safe_areas"]["steps"]) == [k for k, _ in log.area_frames]
+    assert sorted(ents["/world/sensing/corridor"]["steps"]) == list(range(n))
+    assert len(ents["/plots/timing/map_update_ms"]["steps"]) == n
+    assert len(ents["/sensing/replans"]["steps"]) == out.document["replans"] + 1
+    assert rrd_verify(path).returncode == 0

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -18,12 +18,16 @@ class Observation:
         velocity: (2,) [m/s, rad/s] measured body forward speed v and yaw rate w.
         ranges: (n_rays,) [m] range readings (only filled when the controller asks for them
             through ``needs_ranges``), else None.
+        scan: the latest 2-D lidar scan (an object with ``ranges`` (B,) [m], ``hit`` (B,)
+            bool and ``angles`` (B,) [rad] relative to the robot heading) when the run senses
+            with its lidar and a scan was taken this step, else None.
     """
 
     t: float
     pose: np.ndarray
     velocity: np.ndarray
     ranges: np.ndarray | None = None
+    scan: Any = None
 
 
 @dataclass(frozen=True)

@@ -58,6 +58,15 @@ def _resample(ref: Reference, dt: float) -> tuple[np.ndarray, np.ndarray, np.nda
     return states, inputs, area
 
 
+def _plan_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
+    """The corridor chain, reference states (K', 3) and inputs (K', 2) at period ``dt`` [s],
+    and the chain index (2 x corridor position, -1 off the corridor) of each sample's area."""
+    chain = CorridorChain.build(areas, plan.corridor, box_margin)
+    states, inputs, ref_area = _resample(plan.reference, dt)
+    pos = {int(a): 2 * i for i, a in enumerate(np.asarray(plan.corridor, int))}
+    return chain, states, inputs, np.array([pos.get(int(a), -1) for a in ref_area], dtype=int)
+
+
 @dataclass(frozen=True)
 class StepInfo:
     """The problem data of the last step (for inspection, recording and tests).
@@ -342,22 +351,29 @@ class SAMPC(TrackingMPC):
         dt = float(config.dt)
         adaptation = PlantAdaptation(robot, dt, limits.v_max, limits.w_max, limits.a_max,
                                      limits.lower(), limits.upper(), config.adaptation)
-        self.areas = areas
-        self._rects = np.asarray(areas.rects, dtype=float)
-        self.plan = plan
-        self.chain = CorridorChain.build(areas, plan.corridor, config.box_margin)
-        self.ref_states, self.ref_inputs, ref_area = _resample(plan.reference, dt)
-        # chain index (2 x corridor position) of each reference sample's area, -1 if off the corridor
-        pos = {int(a): 2 * i for i, a in enumerate(np.asarray(plan.corridor, int))}
-        self._ref_chain = np.array([pos.get(int(a), -1) for a in ref_area], dtype=int)
+        self._set_plan(areas, plan, config.box_margin, dt)
         self.penalty = SafeAreaPenalty(len(config.q_sa))
         ocp = build_tracking_ocp(config.horizon, dt, self.penalty, position_constraints=True)
         super().__init__(robot, config, limits, ocp, adaptation, failure_injector=failure_injector)
         self.position_slack = config.box_margin
         self._q_sa = np.asarray(config.q_sa, float)
-        self._sa_cache: dict[tuple[int, int], np.ndarray] = {}
         self.reset(np.array([*self.ref_states[0, :2], self.ref_states[0, 2]]))
         self.build_s = time.perf_counter() - t0
+
+    def _set_plan(self, areas: SafeAreas, plan: Plan, box_margin: float, dt: float) -> None:
+        self.areas, self._rects, self.plan = areas, np.asarray(areas.rects, dtype=float), plan
+        self.chain, self.ref_states, self.ref_inputs, self._ref_chain = _plan_tables(areas, plan, box_margin, dt)
+        self._sa_cache: dict[tuple[int, int], np.ndarray] = {}
+
+    def replace_plan(self, areas: SafeAreas, plan: Plan) -> None:
+        """Follow a new corridor and reference (a successful plan on ``areas`` starting at the
+        current pose) from now on, keeping the episode state (previous input, warm start,
+        adaptation, traction limit); the stage assignment restarts cold, the progress at the
+        reference's start. Raises ValueError as the constructor for a bad plan."""
+        if not plan.ok or plan.reference is None or len(plan.reference) < 1:
+            raise ValueError(f"plan must be successful with a reference, got ok={plan.ok} reason={plan.reason!r}")
+        self._set_plan(areas, plan, self.config.box_margin, self.dt)
+        self._s_prev, self._ref_index = None, 0
 
     @property
     def monitor(self):
@@ -394,7 +410,8 @@ class SAMPC(TrackingMPC):
         s = assign_stages(self.chain, guess[:, :2], self._first_candidates(), tol=self._check_tol)
         boxes = stage_boxes(self.chain, s)
         boxes_c, excursion = relax_boxes(boxes, x0[:2])
-        xr, ur = self._exit_targets(x_ref, u_ref, s, x0[:2], float(x0[2]))
+        # reference pulled into reach (exit targets, see the class docstring)
+        xr, ur = exit_targets(self.chain, self._ref_chain[self._horizon_idx], x_ref, u_ref, s, x0[:2], float(x0[2]))
         con = Constraints(boxes_c[1:, :2].ravel(), boxes_c[1:, 2:].ravel(), self._sa_params(s), xr, ur,
                           excursion, (s, boxes_c))
         return con
@@ -411,7 +428,7 @@ class SAMPC(TrackingMPC):
         """Safe-area ids (N+1,) and box margins (N+1,) [m] of an applied plan."""
         s, boxes = context
         margins = np.concatenate(([box_slack(x0[None, :2], boxes[:1])[0]], box_slack(xs[1:, :2], boxes[1:])))
-        return self._rect_ids(s, xs[:, :2]), margins
+        return stage_rect_ids(self.chain, self._rects, s, xs[:, :2]), margins
 
     def turn_context(self, x0: np.ndarray, xs: np.ndarray):
         """Stage assignment and boxes of an opening-turn plan."""
@@ -458,12 +475,6 @@ class SAMPC(TrackingMPC):
         self._horizon_idx = idx
         return xr, ur
 
-    def _exit_targets(
-        self, xr: np.ndarray, ur: np.ndarray, s: np.ndarray, p0: np.ndarray, yaw0: float
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Reference pulled into reach (:func:`~sanav_mj.control.stages.exit_targets`)."""
-        return exit_targets(self.chain, self._ref_chain[self._horizon_idx], xr, ur, s, p0, yaw0)
-
     def _first_candidates(self) -> np.ndarray | None:
         """Members allowed for stage 0: within two of the previous anchor (None at a cold start)."""
         if self._s_prev is None:
@@ -483,7 +494,3 @@ class SAMPC(TrackingMPC):
                                      self.config.box_margin)
             self._sa_cache[key] = theta
         return theta
-
-    def _rect_ids(self, s: np.ndarray, pos: np.ndarray) -> np.ndarray:
-        """Safe-area index for each stage (:func:`~sanav_mj.control.stages.stage_rect_ids`)."""
-        return stage_rect_ids(self.chain, self._rects, s, pos)

@@ -449,6 +449,7 @@ def run_bench(
     time_limit_s: float = 60.0,
     resume: bool = False,
     ray: str | bool | Any = None,
+    sensing: str = "map",
 ) -> list[dict[str, Any]]:
     """Run the comparison and write ``results.csv``, ``table.md`` and ``success.png`` in ``out``.
 
@@ -468,6 +469,7 @@ def run_bench(
             address (``"auto"``, ``"HOST:PORT"``, ``"ray://HOST:PORT"``) for a cluster, or an
             open :class:`~sanav_mj.eval.ray_runner.RaySession`; None: the pool of ``workers``.
             The rows, outputs and journal are the same either way.
+        sensing: ``"map"`` or ``"lidar"`` for every run (lidar: SA-MPC only).
 
     Returns:
         The per (scenario, controller) summary rows (also written to ``table.md``); their
@@ -502,13 +504,15 @@ def run_bench(
     jobs = JobSet(lambda: (
         Job(
             scenario=s, controller=c, seed=k, time_limit_s=time_limit_s,
-            rrd=str(out / "rrd" / f"{Path(s).stem}_{c}_{k}.rrd") if record else None,
+            rrd=str(out / "rrd" / f"{Path(s).stem}_{c}_{k}.rrd") if record else None, sensing=sensing,
         )
         for s in names for c in controllers for k in range(runs)
     ), len(names) * len(controllers) * runs,
         distinct=len(set(names)) == len(names) and len(set(controllers)) == len(controllers))
     with campaign_executor(ray) as executor:
         meta = {"command": "bench", **run_metadata(names, controllers, runs, workers, time_limit_s)}
+        if sensing != "map":
+            meta["sensing"] = sensing
         meta["executor"] = describe(ray)
         begin_campaign(out, meta, resume)
         t0 = time.perf_counter()

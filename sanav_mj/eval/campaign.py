@@ -71,6 +71,7 @@ class Job:
         time_limit_s: [s] simulated time limit.
         rrd: optional recording path.
         tags: extra columns copied into the result row (e.g. the swept values).
+        sensing: ``"map"`` or ``"lidar"`` (see :func:`sanav_mj.eval.episode.run_scenario`).
     """
 
     scenario: str
@@ -80,6 +81,7 @@ class Job:
     time_limit_s: float = 60.0
     rrd: str | None = None
     tags: tuple[tuple[str, Any], ...] = field(default_factory=tuple)
+    sensing: str = "map"
 
 
 class JournalError(ValueError):
@@ -109,9 +111,12 @@ class CampaignInterrupted(KeyboardInterrupt):
 
 def job_key(job: Job) -> str:
     """The identity of ``job`` in a journal: scenario, controller, seed, mismatch items and
-    time limit [s] as compact JSON (the recording path and the tags are not part of it)."""
-    return json.dumps([job.scenario, job.controller, int(job.seed), list(job.mismatch), float(job.time_limit_s)],
-                      separators=(",", ":"))
+    time limit [s] as compact JSON, and the sensing mode when it is not ``"map"`` (so journals
+    of map-mode campaigns keep their keys); the recording path and the tags are not part of it."""
+    key: list[Any] = [job.scenario, job.controller, int(job.seed), list(job.mismatch), float(job.time_limit_s)]
+    if job.sensing != "map":
+        key.append(job.sensing)
+    return json.dumps(key, separators=(",", ":"))
 
 
 def is_error(row: Mapping[str, Any]) -> bool:
@@ -152,6 +157,7 @@ def run_job(job: Job) -> dict[str, Any]:
         mismatch=parse_mismatch(list(job.mismatch)),
         time_limit_s=job.time_limit_s,
         rrd=Path(job.rrd) if job.rrd else None,
+        sensing=job.sensing,
     )
     doc = {k: v for k, v in out.document.items() if k != "trace"}
     for key, value in job.tags:

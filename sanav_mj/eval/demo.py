@@ -26,7 +26,7 @@ class DemoResult:
     failed: list[OSError] = field(default_factory=list)
 
 
-def run_demo(out: Path, record: bool = True, seed: int = 0) -> DemoResult:
+def run_demo(out: Path, record: bool = True, seed: int = 0, sensing: str = "map") -> DemoResult:
     """Run SA-MPC once on each built-in scenario.
 
     Writes, per scenario NAME, into ``out``: ``NAME.json`` (the run JSON), ``NAME.png`` (run
@@ -39,6 +39,7 @@ def run_demo(out: Path, record: bool = True, seed: int = 0) -> DemoResult:
         out: output folder (created).
         record: also write the rerun recordings.
         seed: the seed of every run.
+        sensing: ``"map"`` or ``"lidar"`` (see :func:`sanav_mj.eval.episode.run_scenario`).
     """
     from sanav_mj.eval.episode import run_scenario
     from sanav_mj.eval.plots import plot_areas, plot_run
@@ -58,7 +59,7 @@ def run_demo(out: Path, record: bool = True, seed: int = 0) -> DemoResult:
 
     out.mkdir(parents=True, exist_ok=True)
     for name in tqdm(builtin_scenarios(), desc="demo", unit="scenario", dynamic_ncols=True):
-        outcome = run_scenario(name, seed=seed)
+        outcome = run_scenario(name, seed=seed, sensing=sensing, record_sensing=record)
         doc = outcome.document
         js, png, areas, rrd = (out / f"{name}.json", out / f"{name}.png", out / f"{name}_areas.png",
                                out / f"{name}.rrd")

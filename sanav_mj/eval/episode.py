@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -64,7 +64,10 @@ class Prepared:
 @dataclass
 class RunOutcome:
     """A finished run: its preparation, the episode, the ``run --json`` document and the
-    controller spec it ran with."""
+    controller spec it ran with; ``sensed`` is the
+    :class:`~sanav_mj.control.sensing.SensingSAMPC` of a lidar run (its map, records and
+    replans), None in map mode; ``sensing_log`` its :class:`SensingLog` when kept
+    (``record_sensing=True``, or ``rrd`` given)."""
 
     prepared: Prepared
     controller: str
@@ -72,6 +75,8 @@ class RunOutcome:
     episode: Episode
     document: dict[str, Any]
     spec: ControllerSpec = ControllerSpec()
+    sensed: Any = None
+    sensing_log: SensingLog | None = None
 
 
 def planner_config(robot, spec: ControllerSpec = ControllerSpec()) -> Any:
@@ -171,6 +176,9 @@ def run_scenario(
     run_config: RunConfig | None = None,
     controller_obj: Controller | None = None,
     controller_spec: ControllerSpec | None = None,
+    sensing: str = "map",
+    on_step: Callable[[int, Any], None] | None = None,
+    record_sensing: bool = False,
 ) -> RunOutcome:
     """Run one closed-loop episode of ``controller`` on a scenario and measure it.
 
@@ -189,9 +197,23 @@ def run_scenario(
         controller_spec: the controller and its settings (default:
             ``ControllerSpec(controller)``); its name must equal ``controller`` when both are
             given (``controller`` may then be left at its default).
+        sensing: ``"map"`` (the grid from the scenario's true geoms, planned once) or
+            ``"lidar"`` (the robot's lidar builds the map during the run and SA-MPC replans
+            on it, :class:`~sanav_mj.control.sensing.SensingSAMPC`; SA-MPC only). With
+            ``"lidar"`` the document gains ``"sensing"``, ``"map_update_ms"`` {mean, max,
+            p99}, ``"replans"`` and the ``p50`` / ``p99`` of ``pipeline_ms``; map-mode
+            documents are unchanged. ``controller_obj`` may then be a
+            :class:`~sanav_mj.control.sensing.SensingSAMPC` built by the caller.
+        on_step: optional ``f(step, trace)`` called after each control step (see
+            :func:`sanav_mj.sim.runner.run_episode`), after the recorder's.
+        record_sensing: (lidar) keep the scans, map frames and safe areas of the run in
+            ``RunOutcome.sensing_log`` for a recording made afterwards (always when ``rrd``
+            is given).
 
     Raises:
-        ValueError: unknown controller name, or ``controller_spec.name`` differs from ``controller``.
+        ValueError: unknown controller name, ``controller_spec.name`` differs from
+            ``controller``, unknown ``sensing``, or ``sensing="lidar"`` with a controller
+            other than SA-MPC.
     """
     from dataclasses import replace
 
@@ -209,6 +231,13 @@ def run_scenario(
     else:
         cspec = controller_spec
     controller = cspec.name
+    if sensing not in SENSING_MODES:
+        raise ValueError(f"sensing: expected one of {', '.join(SENSING_MODES)}, got {sensing!r}")
+    if sensing == "lidar" and controller != "sa-mpc":
+        raise ValueError(f"sensing lidar: supported for controller sa-mpc only, got {controller!r}")
+    if sensing == "lidar":
+        return _run_lidar(source, cspec, seed, yaw, resolution, mismatch, time_limit_s, run_config,
+                          controller_obj, on_step, rrd, record_sensing or rrd is not None)
     if isinstance(source, Prepared):
         prep0 = source
         scenario = source.scenario
@@ -241,7 +270,7 @@ def run_scenario(
             cspec, prep.scenario, prep.grid, prep.areas, prep.plan, solve_budget_ms=mismatch.solve_budget_ms
         )
         episode = run_episode(plant, ctrl, start, scenario.goal, cfg, mismatch, rng,
-                              on_step=recorder.log_step if recorder else None,
+                              on_step=_chain(recorder.log_step if recorder else None, on_step),
                               route=planned_route(prep.plan, scenario.goal) if controller in ROUTE_FOLLOWERS else None)
     doc = episode_json(
         episode,
@@ -257,6 +286,183 @@ def run_scenario(
     if recorder is not None:
         recorder.finish(episode, doc)
     return RunOutcome(prep, controller, start, episode, doc, cspec)
+
+
+@dataclass
+class SensingLog:
+    """What a lidar run saw, step by step, for recordings (collected outside the timed step).
+
+    Attributes:
+        scan_points: per step, the (K, 2) [m] world positions of the scan's returns as the
+            robot placed them (at its measured pose), or None on a step without a scan.
+        map_frames: (step, states) pairs: the (ny, nx) int8 unknown / free / occupied states
+            of the sensed grid, kept when they changed, at most every ``every`` steps (and at
+            the last step).
+        area_frames: (step, rects (R, 4) [m]) pairs: the safe areas when they changed, on
+            the same schedule, and at every replan.
+        origin: (2,) [m] grid origin; resolution: [m] cell edge.
+        every: [steps] the frame schedule.
+    """
+
+    origin: np.ndarray
+    resolution: float
+    every: int = 5
+    scan_points: list[np.ndarray | None] = field(default_factory=list)
+    map_frames: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    area_frames: list[tuple[int, np.ndarray]] = field(default_factory=list)
+
+    def hook(self, ctrl, offset) -> Callable[[int, Any], None]:
+        """The runner's ``on_step`` hook for the :class:`SensingSAMPC` ``ctrl`` whose lidar sits
+        at ``offset`` (2,) [m] in the base frame."""
+        last_frame = [-10**9]
+        last_states: list[np.ndarray | None] = [None]
+        ox, oy = float(offset[0]), float(offset[1])
+
+        def on_step(step: int, trace) -> None:
+            scan = ctrl.last_scan
+            if scan is None:
+                self.scan_points.append(None)
+            else:
+                x, y, yaw = (float(v) for v in trace.measured[step])
+                c, s_ = np.cos(yaw), np.sin(yaw)
+                sx, sy = x + c * ox - s_ * oy, y + s_ * ox + c * oy
+                hit = np.asarray(scan.hit, bool)
+                r = np.asarray(scan.ranges, float)[hit]
+                a = yaw + np.asarray(scan.angles, float)[hit]
+                self.scan_points.append(np.column_stack((sx + r * np.cos(a), sy + r * np.sin(a))))
+            rec = ctrl.records[step]
+            due = step - last_frame[0] >= self.every
+            if due or rec.replan is not None:
+                states = ctrl.map.grid.states()
+                if last_states[0] is None or not np.array_equal(states, last_states[0]):
+                    self.map_frames.append((step, states))
+                    last_states[0] = states
+                if ctrl.areas is not None:
+                    self.area_frames.append((step, np.asarray(ctrl.areas.rects, float).copy()))
+                last_frame[0] = step
+
+        return on_step
+
+    def close(self, ctrl, steps: int) -> None:
+        """Add the final map and safe areas (after step ``steps - 1``) when they differ."""
+        if steps <= 0:
+            return
+        states = ctrl.map.grid.states()
+        if not self.map_frames or not np.array_equal(states, self.map_frames[-1][1]):
+            self.map_frames.append((steps - 1, states))
+        if ctrl.areas is not None and (not self.area_frames or self.area_frames[-1][0] != steps - 1):
+            self.area_frames.append((steps - 1, np.asarray(ctrl.areas.rects, float).copy()))
+
+
+#: the ``sensing`` modes of :func:`run_scenario`.
+SENSING_MODES = ("map", "lidar")
+
+
+def _chain(first, second):
+    """One ``on_step`` hook calling ``first`` then ``second`` (either may be None)."""
+    if first is None or second is None:
+        return first if second is None else second
+
+    def both(step, trace):
+        first(step, trace)
+        second(step, trace)
+
+    return both
+
+
+def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(), resolution: float = 0.05,
+                     mismatch: Mismatch = Mismatch()):
+    """The :class:`~sanav_mj.control.sensing.SensingSAMPC` a lidar run of ``scenario`` uses:
+    the known-map mode's inflation (footprint radius + :data:`DEFAULT_MARGIN_M`), the lidar
+    offset of the robot file, the planner matched to the MPC, the grid ``resolution`` [m]."""
+    from sanav_mj.control.sensing import SensingConfig, SensingSAMPC
+    from sanav_mj.mapping.sensed_map import SensedMapConfig
+    from sanav_mj.sim.lidar import lidar_config
+
+    lcfg = lidar_config(scenario.model)
+    inflation = scenario.robot.footprint_radius + DEFAULT_MARGIN_M
+    spec = cspec.with_solve_budget(mismatch.solve_budget_ms)
+    return SensingSAMPC(scenario.robot, scenario.bounds, scenario.goal, inflation, lcfg.offset,
+                        spec.sa_mpc, planner_config(scenario.robot, spec),
+                        SensingConfig(map=SensedMapConfig(resolution=resolution)))
+
+
+def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, resolution: float,
+               mismatch: Mismatch, time_limit_s: float, run_config: RunConfig | None,
+               controller_obj=None, on_step=None, rrd: Path | None = None, record: bool = False) -> RunOutcome:
+    """One SA-MPC run on the map the robot's lidar builds (see :func:`run_scenario`)."""
+    from dataclasses import replace
+
+    from sanav_mj.eval.metrics import episode_json, safe_area_violations, timing_stats
+    from sanav_mj.sim.lidar import Lidar, lidar_config
+    from sanav_mj.sim.mismatch import mismatched_model
+    from sanav_mj.sim.plant import Plant
+    from sanav_mj.sim.runner import run_episode
+
+    if isinstance(source, Prepared):
+        scenario, resolution = source.scenario, source.grid.resolution
+    else:
+        scenario = source if isinstance(source, Scenario) else load_scenario(source)
+    start = initial_pose(scenario, seed, yaw)
+    model = mismatched_model(scenario, mismatch) if mismatch.physical else None
+    plant = Plant(scenario, model=model)
+    lcfg = lidar_config(plant.model)
+    lidar = Lidar(plant.model, scenario.obstacles, lcfg)
+    lidar_rng = np.random.default_rng([seed, 16])
+    ctrl = controller_obj if controller_obj is not None else lidar_controller(scenario, cspec, resolution, mismatch)
+    cfg = replace(run_config or RunConfig(), time_limit_s=time_limit_s)
+    rng = np.random.default_rng(seed + 1)
+    log = SensingLog(origin=ctrl.map.grid.origin.copy(), resolution=ctrl.map.grid.resolution) if record else None
+    outside: list[int] = []
+
+    def violations(step: int, trace) -> None:
+        # the true position of the step against the safe areas the step's map update left
+        # (before the first plan the robot turns on the spot where it stands: not counted)
+        if ctrl.mpc is not None and ctrl.areas is not None:
+            outside.append(safe_area_violations(np.asarray(trace.pose[step])[None, :2], ctrl.areas.rects))
+
+    hook = _chain(_chain(violations, log.hook(ctrl, lcfg.offset) if log is not None else None), on_step)
+    from sanav_mj.sim.termination import ReplannedRouteProgress
+
+    episode = run_episode(plant, ctrl, start, scenario.goal, cfg, mismatch, rng,
+                          progress=ReplannedRouteProgress(lambda: ctrl.route, scenario.goal),
+                          on_step=hook, scan=lambda: lidar.scan(plant.data, lidar_rng),
+                          scan_period_s=lcfg.period)
+    doc = episode_json(episode, scenario=scenario.name, controller=cspec.name, seed=seed, start=start,
+                       goal=scenario.goal, rects=None, mismatch=mismatch.changed(), setup_ms=0.0)
+    doc["safe_area_violations"] = int(sum(outside))
+    doc["pipeline_ms"] = timing_stats(episode.trace.pipeline_ms)
+    doc["sensing"] = "lidar"
+    mu = timing_stats(ctrl.map_update_ms)
+    doc["map_update_ms"] = {"mean": mu["mean"], "max": mu["max"], "p99": mu["p99"]}
+    doc["replans"] = int(ctrl.replans)
+    prep = _sensed_prepared(scenario, ctrl)
+    if log is not None:
+        log.close(ctrl, episode.steps)
+    out = RunOutcome(prep, cspec.name, start, episode, doc, cspec, sensed=ctrl, sensing_log=log)
+    if rrd is not None:
+        from sanav_mj.record import record_episode
+
+        record_episode(rrd, out)
+    return out
+
+
+def _sensed_prepared(scenario: Scenario, ctrl) -> Prepared:
+    """The :class:`Prepared` of a lidar run, for plots and recordings: the grid and quadtree
+    of the safe map at the end of the run, the safe areas and plan of the last plan (a failed
+    plan when the robot never planned)."""
+    from dataclasses import replace
+
+    from sanav_mj.mapping.safe_areas import build_safe_areas
+    from sanav_mj.planning.reference import Plan as _Plan
+
+    final = build_safe_areas(ctrl.map.grid.safe_grid())
+    if ctrl.mpc is None:
+        none = np.zeros((0, 2))
+        plan = _Plan(ok=False, reason="no_path", corridor=np.zeros(0, int), goal=scenario.goal, waypoints=none,
+                     path=none, smoothed=none, reference=None)
+        return Prepared(scenario, final, plan, {})
+    return Prepared(scenario, replace(final, boxes=ctrl.plan_boxes, areas=ctrl.mpc.areas), ctrl.mpc.plan, {})
 
 
 #: controllers that track the planned route: their ``stuck`` rule measures progress along it.

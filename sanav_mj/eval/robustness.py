@@ -239,6 +239,7 @@ def run_robustness(
     fixed: Mismatch = Mismatch(),
     resume: bool = False,
     ray: str | bool | Any = None,
+    sensing: str = "map",
 ) -> list[dict[str, Any]]:
     """Run the sweep and write CSVs and heat maps into ``out``.
 
@@ -259,6 +260,7 @@ def run_robustness(
         ray: run on Ray instead of the process pool, as in
             :func:`sanav_mj.eval.bench.run_bench` (True: a local Ray; an address: a cluster;
             None: the pool of ``workers``); the rows, outputs and journal are the same.
+        sensing: ``"map"`` or ``"lidar"`` for every run (lidar: SA-MPC only).
 
     Returns:
         One summary row per grid point pooled over the scenarios (``scenario`` =
@@ -302,7 +304,7 @@ def run_robustness(
                 tags = ((xk, x),) + (((yk, y),) if yk else ()) + (("_cell", (yi, xi)),)
                 for s in scenarios:
                     for k in range(seeds):
-                        yield Job(s, controller, k, items, time_limit_s, None, tags)
+                        yield Job(s, controller, k, items, time_limit_s, None, tags, sensing)
 
     n_jobs = len(yv) * len(xv) * len(scenarios) * seeds
     # keys are distinct by construction when the scenarios and each key's values are
@@ -314,6 +316,8 @@ def run_robustness(
     columns = (xk,) + ((yk,) if yk else ()) + CSV_COLUMNS + (("mismatch",) if n_jobs else ())
     with campaign_executor(ray) as executor:
         meta = {"command": "robustness", **run_metadata(scenarios, [controller], seeds, workers, time_limit_s)}
+        if sensing != "map":
+            meta["sensing"] = sensing
         meta["sweep"] = {k: [_value(k, v) for v in vals] for k, vals in sweep}
         meta["fixed"] = dict(base)
         meta["executor"] = describe(ray)

@@ -123,8 +123,37 @@ class SensedMap:
         c, s = math.cos(p[2]), math.sin(p[2])
         ox, oy = self.sensor_offset
         origin = (p[0] + c * ox - s * oy, p[1] + s * ox + c * oy)
+        return self._integrate_at(origin, float(p[2]), ranges, hit, angles)
+
+    def clear_footprint(self, pose, radius: float, beams: int = 64) -> SensedUpdate:
+        """Observe the disc the robot's body covers as free (nothing else can be there).
+
+        A 2-D lidar ahead of the axle never sees the cells under and just behind the robot
+        (its field of view leaves a cone behind the sensor); the robot itself tells they are
+        free. Cast as ``beams`` return-less beams of length ``radius`` from the measured
+        base position (the log-odds rules apply as for a scan: a cell that ever held a return
+        never becomes free).
+
+        Args:
+            pose: (3,) [m, m, rad] measured robot pose.
+            radius: [m] footprint radius (the circumscribed disc), >= 0.
+            beams: number of beams over the full circle, >= 8.
+
+        Returns:
+            The update, as :meth:`integrate`.
+        """
+        p = np.asarray(pose, dtype=float).reshape(-1)
+        if p.shape != (3,):
+            raise ValueError(f"pose must be (3,) [m, m, rad], got shape {p.shape}")
+        if not (math.isfinite(radius) and radius >= 0) or beams < 8:
+            raise ValueError(f"radius must be finite >= 0 [m] and beams >= 8, got {radius!r}, {beams!r}")
+        angles = np.linspace(-math.pi, math.pi, int(beams), endpoint=False)
+        ranges = np.full(int(beams), float(radius))
+        return self._integrate_at((p[0], p[1]), float(p[2]), ranges, np.zeros(int(beams), bool), angles)
+
+    def _integrate_at(self, origin, heading: float, ranges, hit, angles) -> SensedUpdate:
         t0 = time.perf_counter()
-        up = self.grid.integrate(origin, float(p[2]), ranges, hit, angles)
+        up = self.grid.integrate(origin, heading, ranges, hit, angles)
         t1 = time.perf_counter()
         cells = up.safe_changed
         if cells.size:

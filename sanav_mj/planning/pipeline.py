@@ -228,7 +228,8 @@ class _Timed:
     rounds: int  # fallback widenings needed
 
 
-def _time_parametrise_inside(sm: SmoothingResult, crect: np.ndarray, robot: RobotParams, cfg: PlannerConfig) -> _Timed:
+def _time_parametrise_inside(sm: SmoothingResult, crect: np.ndarray, robot: RobotParams, cfg: PlannerConfig,
+                             v_start: float = 0.0) -> _Timed:
     """Stage 3: speed profile and samples at ``dt``; every sample checked against the corridor,
     the fallback to the polyline widened around the samples outside (at most
     ``_MAX_SAMPLE_ROUNDS`` rounds, then the whole polyline).
@@ -243,7 +244,7 @@ def _time_parametrise_inside(sm: SmoothingResult, crect: np.ndarray, robot: Robo
     rounds = 0
     while True:
         prof, smp, pos_xy = time_parametrise(
-            curve, u_nodes, cfg.dt, v_cap, w_cap, cfg.lateral_accel, a_cap, points=nodes
+            curve, u_nodes, cfg.dt, v_cap, w_cap, cfg.lateral_accel, a_cap, points=nodes, v_start=v_start
         )
         pos, ok = corridor_assignment(crect, pos_xy, curve.hint(smp.u))
         if ok.all():
@@ -282,6 +283,7 @@ def plan(
     goal: np.ndarray,
     robot: RobotParams,
     config: PlannerConfig | None = None,
+    start_speed: float = 0.0,
 ) -> Plan:
     """Plan a safe reference from ``start`` to ``goal`` through the safe areas.
 
@@ -292,6 +294,8 @@ def plan(
         goal: (2,) [m] goal position.
         robot: limits ``v_max`` [m/s], ``w_max`` [rad/s], ``a_max`` [m/s^2].
         config: planner settings (defaults when None).
+        start_speed: [m/s] speed of the reference at the start, >= 0 (a robot replanning in
+            motion; capped by the start's speed limits); 0: from rest, as the paper.
 
     Returns:
         A :class:`Plan`. ``ok`` is False with ``reason == "no_path"`` when the goal cannot be
@@ -311,6 +315,8 @@ def plan(
     start = _vector("start", start, 3)
     goal = _vector("goal", goal, 2)
     _check_robot(robot)
+    if not (isinstance(start_speed, (int, float)) and math.isfinite(start_speed) and start_speed >= 0):
+        raise ValueError(f"start_speed must be a finite number >= 0 [m/s], got {start_speed!r}")
     rects = np.asarray(areas.rects, dtype=float).reshape(-1, 4)
     info: dict[str, Any] = {}
     if rects.shape[0] == 0:
@@ -326,7 +332,7 @@ def plan(
         crect = rects[route.corridor]
         sm = _smooth(route, crect, cfg)
         t_smooth = time.perf_counter()
-        timed = _time_parametrise_inside(sm, crect, robot, cfg)
+        timed = _time_parametrise_inside(sm, crect, robot, cfg, start_speed)
     except _NoPlan as no:
         return _fail(no.reason, no.detail, goal, info)
     t_time = time.perf_counter()

@@ -97,7 +97,8 @@ def discrete_geometry(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 
 
 def speed_profile(
-    ds: np.ndarray, kappa: np.ndarray, v_cap: float, w_cap: float, a_lat: float, a_max: float
+    ds: np.ndarray, kappa: np.ndarray, v_cap: float, w_cap: float, a_lat: float, a_max: float,
+    v_start: float = 0.0,
 ) -> np.ndarray:
     """Speed at each node from rest to rest under speed, yaw-rate, lateral and longitudinal
     acceleration limits (forward-backward pass, see the module docstring).
@@ -109,9 +110,11 @@ def speed_profile(
         w_cap: [rad/s] yaw-rate limit.
         a_lat: [m/s^2] lateral acceleration limit.
         a_max: [m/s^2] longitudinal acceleration / deceleration limit.
+        v_start: [m/s] speed at the first node (>= 0; a robot replanning in motion), capped
+            by the first node's limit; 0: from rest.
 
     Returns:
-        (N,) [m/s] speeds, 0 at both ends.
+        (N,) [m/s] speeds, ``min(v_start, limit)`` at the first node (0 from rest), 0 at the end.
     """
     k = np.abs(kappa)
     env = k.copy()
@@ -121,7 +124,7 @@ def speed_profile(
     with np.errstate(divide="ignore"):
         lim = np.minimum(v_cap, np.minimum(w_cap / env, np.sqrt(a_lat / env)))
     V_lim = lim * lim
-    V_lim[0] = 0.0
+    V_lim[0] = min(float(V_lim[0]), float(v_start) ** 2) if v_start > 0 else 0.0
     V_lim[-1] = 0.0
     c = np.zeros(k.size)
     np.cumsum(2.0 * a_max * ds, out=c[1:])
@@ -133,14 +136,15 @@ def speed_profile(
 
 
 def profile_curve(
-    u: np.ndarray, points: np.ndarray, v_cap: float, w_cap: float, a_lat: float, a_max: float
+    u: np.ndarray, points: np.ndarray, v_cap: float, w_cap: float, a_lat: float, a_max: float,
+    v_start: float = 0.0,
 ) -> PathProfile:
     """Geometry, speed and timing on the dense samples of a curve.
 
     Args:
         u: (N,) [m] curve parameters of the samples (increasing).
         points: (N, 2) [m] curve samples; repeated points are dropped.
-        v_cap, w_cap, a_lat, a_max: limits as in :func:`speed_profile`.
+        v_cap, w_cap, a_lat, a_max, v_start: limits and start speed as in :func:`speed_profile`.
 
     Returns:
         The :class:`PathProfile` (at least 3 nodes unless the curve has length 0).
@@ -158,7 +162,7 @@ def profile_curve(
         u = np.array([u[0], 0.5 * (u[0] + u[1]), u[1]])
         points = np.array([points[0], 0.5 * (points[0] + points[1]), points[1]])
     sigma, heading, kappa, ds = discrete_geometry(points)
-    v = speed_profile(ds, kappa, v_cap, w_cap, a_lat, a_max)
+    v = speed_profile(ds, kappa, v_cap, w_cap, a_lat, a_max, v_start)
     vs = v[:-1] + v[1:]
     t = np.zeros(points.shape[0])
     np.cumsum(2.0 * ds / np.maximum(vs, 1e-12), out=t[1:])
@@ -233,6 +237,7 @@ def time_parametrise(
     a_lat: float,
     a_max: float,
     points: np.ndarray | None = None,
+    v_start: float = 0.0,
 ) -> tuple[PathProfile, TimedSamples, np.ndarray]:
     """Profile a curve on dense nodes and sample it at ``dt``.
 
@@ -242,11 +247,12 @@ def time_parametrise(
         dt: [s] sampling step.
         v_cap, w_cap, a_lat, a_max: limits as in :func:`speed_profile`.
         points: (N, 2) [m] ``curve(u_nodes)`` when already computed.
+        v_start: [m/s] speed at the start (see :func:`speed_profile`).
 
     Returns:
         ``(profile, samples, positions)``: positions (K, 2) [m] are ``curve(samples.u)``.
     """
     q = curve(u_nodes) if points is None else points
-    prof = profile_curve(np.asarray(u_nodes, dtype=float), q, v_cap, w_cap, a_lat, a_max)
+    prof = profile_curve(np.asarray(u_nodes, dtype=float), q, v_cap, w_cap, a_lat, a_max, v_start)
     smp = sample_profile(prof, dt)
     return prof, smp, curve(smp.u)

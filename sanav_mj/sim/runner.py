@@ -146,6 +146,9 @@ def run_episode(
     measurement_fault: Callable[[int, np.ndarray], np.ndarray] | None = None,
     on_step: Callable[[int, EpisodeTrace], None] | None = None,
     route: np.ndarray | None = None,
+    scan: Callable[[], object] | None = None,
+    scan_period_s: float | None = None,
+    progress: Progress | None = None,
 ) -> Episode:
     """Run one closed-loop episode.
 
@@ -167,6 +170,15 @@ def run_episode(
             measures progress along it (:class:`~sanav_mj.sim.termination.RouteProgress`),
             else as the reduction of the straight-line distance to the goal (see
             :mod:`sanav_mj.sim.termination`).
+        scan: optional ``f() -> scan`` that casts the robot's lidar in the current physics
+            state (``sanav_mj.sim.lidar.Lidar.scan`` bound to the plant's data and a seeded
+            generator); the scan is passed to the controller in ``Observation.scan``, at most
+            once per control step, at the sensor's rate ``1 / scan_period_s`` (with the
+            default ``None`` period: every step). Its wall time is part of ``pipeline_ms``.
+        scan_period_s: [s] time between scans.
+        progress: the ``stuck`` rule's progress measure, instead of the one ``route``
+            implies (e.g. :class:`~sanav_mj.sim.termination.ReplannedRouteProgress` for a
+            controller that replans).
 
     Returns:
         The :class:`Episode` with its trace.
@@ -178,7 +190,8 @@ def run_episode(
     controller.reset(plant.pose())
     trace = EpisodeTrace()
     delay_line: deque[tuple[float, float]] = deque([(0.0, 0.0)] * mismatch.delay)
-    progress: Progress | None = RouteProgress(route) if route is not None else None
+    if progress is None and route is not None:
+        progress = RouteProgress(route)
     rules = Termination(config, dt, goal, progress)
     last_valid = plant.pose()
     bad_streak = 0
@@ -189,6 +202,7 @@ def run_episode(
     success = False
     wall0 = time.perf_counter()
     step = 0
+    next_scan = -math.inf
     for step in range(rules.max_steps):
         t = plant.time
         true_pose = plant.pose()
@@ -207,15 +221,24 @@ def run_episode(
         else:
             bad_streak = 0
             last_valid = meas.copy()
+        scan_ms = 0.0
+        sensed = None
+        if scan is not None and t >= next_scan - 1e-9:
+            t_scan = time.perf_counter()
+            sensed = scan()
+            scan_ms = (time.perf_counter() - t_scan) * 1e3
+            next_scan = t + (scan_period_s or 0.0) if next_scan == -math.inf else max(
+                next_scan + (scan_period_s or 0.0), t)
         obs = Observation(
             t=t,
             pose=meas,
             velocity=plant.body_velocity(),
             ranges=plant.ray_ranges(config.n_rays, config.ray_range_m) if controller.needs_ranges else None,
+            scan=sensed,
         )
         t0 = time.perf_counter()
         cmd: Command = controller.step(obs)
-        pipeline_ms = (time.perf_counter() - t0) * 1e3
+        pipeline_ms = (time.perf_counter() - t0) * 1e3 + scan_ms
         v, w = float(cmd.v), float(cmd.w)
         if not (math.isfinite(v) and math.isfinite(w)):
             v, w = 0.0, 0.0

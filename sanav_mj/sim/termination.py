@@ -133,6 +133,45 @@ class RouteProgress:
         return float(self._s0[k] + t[k] * self._len[k])
 
 
+class ReplannedRouteProgress:
+    """Progress along a route that is replanned during the episode (a robot that maps as it
+    drives): the arc length [m] advanced along the route current at each step, summed.
+
+    When the route changes (a replan), progress restarts from the position's projection on
+    the new route, so a replan neither adds nor removes progress; backing out of a dead end
+    along the new route counts as progress, whereas the straight-line distance to the goal
+    would count it as regress. Before the first route exists there is no progress.
+
+    Args:
+        current: ``f() -> (P, 2) [m] route or None``, the route followed now (a new array
+            object after each replan).
+        goal: (2,) [m] goal; appended to a route that does not end there (:func:`route_of`).
+    """
+
+    def __init__(self, current, goal: np.ndarray) -> None:
+        self._current = current
+        self.goal = _points("goal", goal).reshape(2)
+        self._route = None
+        self._measure: RouteProgress | None = None
+        self._last = 0.0
+        self.total = 0.0
+
+    def __call__(self, xy: np.ndarray) -> float:
+        """The summed progress [m] at ``xy`` (2,) [m]."""
+        r = self._current()
+        if r is None:
+            return self.total
+        if r is not self._route:
+            self._route = r
+            self._measure = RouteProgress(route_of(r, self.goal))
+            self._last = self._measure(xy)
+            return self.total
+        s = self._measure(xy)
+        self.total += s - self._last
+        self._last = s
+        return self.total
+
+
 class Termination:
     """The termination rules of one episode (stateful: it keeps the progress window).
 

@@ -75,3 +75,27 @@ def test_tight_arc_respects_yaw_rate_and_lateral_limits():
     assert np.all(np.abs(s.w) <= 1.0 + 1e-9)
     assert np.max(prof.v) == pytest.approx(min(1.0 * R, np.sqrt(0.5 * R)), rel=1e-3)
     assert np.all(np.abs(np.diff(s.v)) <= 0.1 + 1e-9)
+
+
+def test_speed_profile_from_a_start_speed_exact():
+    """Replanning in motion: the profile starts at ``v_start`` (capped by the first node's limit)
+    and accelerates from it, ``v_1^2 = v_start^2 + 2 a ds``; 0 gives the rest-to-rest profile."""
+    from sanav_mj.planning.timing import speed_profile
+
+    ds = np.full(40, 0.05)
+    kappa = np.zeros(41)
+    v = speed_profile(ds, kappa, 10.0, 5.0, 1.0, 1.0, v_start=0.5)
+    assert v[0] == 0.5 and v[-1] == 0.0
+    assert v[1] == pytest.approx(np.sqrt(0.25 + 2 * 1.0 * 0.05), rel=1e-12)
+    assert np.array_equal(speed_profile(ds, kappa, 10.0, 5.0, 1.0, 1.0, v_start=0.0),
+                          speed_profile(ds, kappa, 10.0, 5.0, 1.0, 1.0))
+    assert speed_profile(ds, kappa, 0.3, 5.0, 1.0, 1.0, v_start=0.5)[0] == pytest.approx(0.3, rel=1e-15)
+
+
+def test_plan_rejects_a_negative_start_speed():
+    from sanav_mj.planning import plan
+    from sanav_mj.eval.episode import prepare
+
+    prep = prepare("single_rect")
+    with pytest.raises(ValueError, match="start_speed"):
+        plan(prep.areas, prep.scenario.start, prep.scenario.goal, prep.scenario.robot, start_speed=-1.0)

@@ -137,3 +137,21 @@ def test_runner_and_training_env_share_one_config():
     assert nav_env.NavEnvConfig().termination == TerminationConfig(**shared)
     with pytest.raises(ValueError, match="RunConfig.stuck_window_s"):
         RunConfig(stuck_window_s=0.0)
+
+
+def test_replanned_route_progress_sums_advance_along_each_route_and_ignores_replans():
+    """Exact arc lengths: 2 m along the first route, a replan onto a route leading back the
+    other way adds nothing, then 1.5 m along it counts as progress (backing out of a dead
+    end), whereas the distance to the goal grew."""
+    from sanav_mj.sim.termination import ReplannedRouteProgress
+
+    goal = np.array([10.0, 0.0])
+    current = {"r": None}
+    prog = ReplannedRouteProgress(lambda: current["r"], goal)
+    assert prog(np.array([0.0, 0.0])) == 0.0  # no route yet: no progress
+    current["r"] = np.array([[0.0, 0.0], [10.0, 0.0]])
+    assert prog(np.array([1.0, 0.0])) == 0.0
+    assert prog(np.array([3.0, 0.0])) == pytest.approx(2.0, abs=1e-12)
+    current["r"] = np.array([[3.0, 0.0], [0.0, 0.0], [0.0, 5.0], [10.0, 5.0]])  # a new array: replanned
+    assert prog(np.array([3.0, 0.0])) == pytest.approx(2.0, abs=1e-12)
+    assert prog(np.array([1.5, 0.2])) == pytest.approx(3.5, abs=1e-12)

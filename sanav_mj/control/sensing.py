@@ -1,0 +1,341 @@
+"""SA-MPC on the map its own lidar builds: map update, replanning and solve in one step.
+
+:class:`SensingSAMPC` wraps :class:`~sanav_mj.control.sa_mpc.SAMPC`. Each control step that
+brings a scan (``Observation.scan``):
+
+1. **Map update.** The scan is added to a :class:`~sanav_mj.mapping.sensed_map.SensedMap`
+   at the pose the controller *measures* (pose noise acts on the map); before the first
+   plan, and whenever the robot's own cell is not safe, the robot's footprint disc is
+   first observed free (:meth:`SensedMap.clear_footprint`: the lidar ahead of the axle
+   never sees the cells under the robot). The safe areas (observed free space,
+   no occupied or unknown cell within the inflation radius) and the route areas (unknown
+   counts as passable) are updated incrementally.
+2. **Replan check.** Corridor and reference are recomputed from the measured pose when
+
+   - ``blocked``: a rectangle of the corridor being followed is no longer entirely safe
+     (:meth:`SensedMap.rects_still_safe`); the MPC's stage boxes and J_SA slots are all
+     built from corridor rectangles, so after this check every rectangle the MPC uses in
+     this step is observed free space in the current map;
+   - ``route``: the route towards the goal crosses a cell that is no longer route-safe
+     (a scan saw an obstacle on it);
+   - ``extend``: the local goal is short of the goal and the safe areas grew since the
+     last plan, at most every ``replan_interval`` steps.
+
+3. **Plan.** A *route* from the measured pose to the goal is planned on the route areas;
+   the local goal is the last sample of the route's leading stretch that lies in safe
+   cells, and the corridor and reference the MPC follows are planned on the safe areas
+   from the measured pose to that local goal (the goal itself when the whole route is in
+   safe cells). The MPC's hard constraints and J_SA therefore use observed free space only.
+4. **Solve.** The SA-MPC step with the (possibly new) corridor. Its horizon ends at rest
+   (terminal stop ``v_{N-1} = 0``, and the speed bounds it implies) with every predicted
+   position inside a stage box within the safe areas: each accepted plan is a way to stop
+   inside known free space, and the shifted plan stays feasible as long as its rectangles
+   stay safe; when a scan removes one, the replan happens before the solve.
+
+Before a first plan exists (at the start the cells around the robot behind the sensor are
+unknown, so the robot's own position is not yet safe) the robot turns on the spot, which
+keeps its body inside the disc it already occupies, until its position is safe.
+
+The controller keeps per-step records for the run JSON, the recording and tests: the map
+update time of each scan, the replans (step, reason) and the corridor rectangles in use.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sanav_mj.control.base import Command, Observation
+from sanav_mj.control.config import MPCConfig
+from sanav_mj.control.sa_mpc import SAMPC
+from sanav_mj.mapping.safe_areas import SafeAreas
+from sanav_mj.mapping.sensed_map import SensedMap, SensedMapConfig
+from sanav_mj.planning import PlannerConfig
+from sanav_mj.planning import plan as make_plan
+from sanav_mj.planning.reference import Plan
+from sanav_mj.scene import RobotParams
+
+__all__ = ["SensingConfig", "SensingSAMPC", "StepRecord"]
+
+
+@dataclass(frozen=True)
+class SensingConfig:
+    """Settings of the sensing loop.
+
+    Attributes:
+        replan_interval: [steps] smallest number of control steps between two ``extend``
+            replans (a growing map alone does not replan every step), >= 1.
+        beam_stride: [beams] add every ``beam_stride``-th beam of a scan to the map (1: all);
+            fewer beams halve the map update's work, at the price of gaps between far beams
+            that later scans fill (safety is unaffected: fewer observations mean less known
+            free space, never more), integer >= 1.
+        scan_turn_rate: [rad/s] yaw rate of the turn on the spot before the first plan, > 0.
+        max_scan_turn_s: [s] give up turning after this long (the run then ends as stuck
+            or timed out without a plan), > 0.
+        map: the sensed map's resolution, quadtree and log-odds settings.
+    """
+
+    replan_interval: int = 5
+    beam_stride: int = 1
+    scan_turn_rate: float = 1.0
+    max_scan_turn_s: float = 8.0
+    map: SensedMapConfig = field(default_factory=SensedMapConfig)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.replan_interval, bool) or not isinstance(self.replan_interval, int) \
+                or self.replan_interval < 1:
+            raise ValueError(f"SensingConfig.replan_interval: expected an integer >= 1, got {self.replan_interval!r}")
+        if isinstance(self.beam_stride, bool) or not isinstance(self.beam_stride, int) or self.beam_stride < 1:
+            raise ValueError(f"SensingConfig.beam_stride: expected an integer >= 1, got {self.beam_stride!r}")
+        for name in ("scan_turn_rate", "max_scan_turn_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"SensingConfig.{name}: expected a finite number > 0, got {v!r}")
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """What the sensing loop did at one control step.
+
+    Attributes:
+        map_ms: [ms] map update time (grid, safe and route areas) of this step's scan, or
+            None without a scan.
+        replan: the replan reason (``"initial"``, ``"blocked"``, ``"route"``, ``"extend"``)
+            or None.
+        replan_ms: [ms] time spent planning this step (0 without a replan).
+        corridor_rects: (C, 4) [m] the corridor rectangles the MPC used this step (empty
+            while turning before the first plan).
+        map_changed: whether the safe areas changed this step.
+    """
+
+    map_ms: float | None
+    replan: str | None
+    replan_ms: float
+    corridor_rects: np.ndarray
+    map_changed: bool
+
+
+class SensingSAMPC:
+    """SA-MPC driving on the map its lidar builds (the Controller protocol).
+
+    Args:
+        robot: nominal robot parameters.
+        bounds: (4,) [m] workspace xmin, ymin, xmax, ymax.
+        goal: (2,) [m] goal position.
+        inflation: [m] footprint radius + margin (as the known-map grid).
+        sensor_offset: (2,) [m] lidar position in the base frame.
+        mpc: the SA-MPC settings.
+        planner: the planner settings (matched to the MPC).
+        config: sensing-loop settings.
+
+    Attributes:
+        name: ``"sa-mpc"``; dt: [s] control period; needs_ranges: False.
+        map: the :class:`SensedMap` of the episode.
+        mpc: the inner :class:`SAMPC` (None before the first plan).
+        records: one :class:`StepRecord` per step.
+        route: (P, 2) [m] the latest route to the goal, or None.
+        local_goal: (2,) [m] the goal of the corridor being followed, or None.
+        plan_boxes: (R, 4) int64 cell boxes of the safe areas the current plan was made on
+            (``mpc.areas``).
+        last_scan: the scan of the last step (None without one).
+        areas: the current safe areas (None before the first scan).
+    """
+
+    name = "sa-mpc"
+    needs_ranges = False
+
+    def __init__(self, robot: RobotParams, bounds, goal, inflation: float, sensor_offset=(0.0, 0.0),
+                 mpc: MPCConfig = MPCConfig(), planner: PlannerConfig | None = None,
+                 config: SensingConfig = SensingConfig()) -> None:
+        self.robot = robot
+        self.bounds = np.asarray(bounds, dtype=float).reshape(4)
+        self.goal = np.asarray(goal, dtype=float).reshape(2)
+        self.inflation = float(inflation)
+        self.sensor_offset = tuple(float(v) for v in sensor_offset)
+        self.mpc_config = mpc
+        self.planner = planner if planner is not None else PlannerConfig(dt=mpc.dt)
+        self.config = config
+        self.dt = float(mpc.dt)
+        self.mpc: SAMPC | None = None
+        self.reset(np.zeros(3))
+
+    # ------------------------------------------------------------------ episode
+
+    def reset(self, pose: np.ndarray) -> None:
+        """Start a new episode at ``pose`` (3,) [m, m, rad] with an empty map."""
+        self.map = SensedMap(self.bounds, self.inflation, self.sensor_offset, self.config.map)
+        self._areas: SafeAreas | None = None
+        self._boxes = np.zeros((0, 4), dtype=np.int64)
+        self.plan_boxes = self._boxes
+        self._route_areas: SafeAreas | None = None
+        self._corridor_rects = np.zeros((0, 4))
+        self.route: np.ndarray | None = None
+        self.local_goal: np.ndarray | None = None
+        self.records: list[StepRecord] = []
+        self.last_scan = None
+        self._since_plan = 0
+        self._grown = False
+        self._turn_steps = 0
+        self._turn_w = 0.0
+        self._mpc_fresh = True
+        if self.mpc is not None:
+            self.mpc.reset(np.asarray(pose, dtype=float).reshape(3))
+            self._mpc_fresh = True
+
+    @property
+    def areas(self) -> SafeAreas | None:
+        """The current safe areas (observed free space), None before the first scan."""
+        return self._areas
+
+    @property
+    def replans(self) -> int:
+        """Plans made after the first one in this episode."""
+        return max(0, sum(r.replan is not None for r in self.records) - 1)
+
+    @property
+    def map_update_ms(self) -> list[float]:
+        """[ms] map update time of every scan of the episode."""
+        return [r.map_ms for r in self.records if r.map_ms is not None]
+
+    # ------------------------------------------------------------------ step
+
+    def step(self, obs: Observation) -> Command:
+        """Map update, replan when needed, SA-MPC solve (see the module docstring)."""
+        pose = np.asarray(obs.pose, dtype=float).reshape(3)
+        self.last_scan = obs.scan
+        map_ms = None
+        changed = False
+        if obs.scan is not None and np.all(np.isfinite(pose)):
+            t0 = time.perf_counter()
+            changed = False
+            if self.mpc is None or not self.map.grid.safe_at(self._cells(pose[None, :2]))[0]:
+                changed = self.map.clear_footprint(pose, self.robot.footprint_radius).changed
+            k = self.config.beam_stride
+            up = self.map.integrate(pose, obs.scan.ranges[::k], obs.scan.hit[::k], obs.scan.angles[::k])
+            map_ms = (time.perf_counter() - t0) * 1e3
+            changed = up.changed or changed
+            self._areas = up.areas
+            self._boxes = up.boxes
+            self._route_areas = up.route_areas
+            self._grown = self._grown or changed
+        self._since_plan += 1
+        reason = self._replan_reason(changed, pose)
+        replan_ms = 0.0
+        replanned = None
+        if reason is not None and np.all(np.isfinite(pose)):
+            t0 = time.perf_counter()
+            speed = float(obs.velocity[0]) if obs.velocity is not None and np.isfinite(obs.velocity[0]) else 0.0
+            if self._replan(pose, max(0.0, speed)):
+                replanned = reason
+            replan_ms = (time.perf_counter() - t0) * 1e3
+        if self.mpc is None:
+            cmd = self._scan_turn(obs)
+        else:
+            cmd = self.mpc.step(obs)
+        self.records.append(StepRecord(map_ms, replanned, replan_ms, self._corridor_rects.copy(), changed))
+        return cmd
+
+    def _replan_reason(self, changed: bool, pose: np.ndarray) -> str | None:
+        if self._areas is None or not np.all(np.isfinite(pose)):
+            return None
+        if self.mpc is None or self.local_goal is None:
+            # the first plan waits until the robot's own position is observed safe (or the
+            # turn on the spot has lasted its limit: the planner then projects the start)
+            turned_out = self._turn_steps * self.dt >= self.config.max_scan_turn_s
+            safe_here = bool(self.map.grid.safe_at(self._cells(pose[None, :2]))[0])
+            return "initial" if safe_here or turned_out else None
+        if changed and len(self._corridor_rects) and not self.map.rects_still_safe(self._corridor_rects).all():
+            return "blocked"
+        if self.route is not None and self._route_areas is not None and not self._route_clear():
+            return "route"
+        far = np.hypot(*(self.local_goal - self.goal)) > 1e-9
+        if far and self._grown and self._since_plan >= self.config.replan_interval:
+            return "extend"
+        return None
+
+    def _cells(self, pts: np.ndarray) -> np.ndarray:
+        g = self.map.grid
+        ny, nx = g.shape
+        j = np.clip(np.floor((pts[:, 0] - g.origin[0]) / g.resolution).astype(np.int64), 0, nx - 1)
+        i = np.clip(np.floor((pts[:, 1] - g.origin[1]) / g.resolution).astype(np.int64), 0, ny - 1)
+        return i * nx + j
+
+    def _in_ok_cells(self, pts: np.ndarray, ok_at) -> np.ndarray:
+        """(P,) bool: each point (P, 2) [m] lies in a cell that ``ok_at`` accepts, cells taken
+        as closed squares (a point on a cell edge, where the planner's closed rectangles put
+        samples, counts for either side)."""
+        e = 1e-6 * self.map.grid.resolution
+        out = np.zeros(len(pts), dtype=bool)
+        for dx, dy in ((-e, -e), (-e, e), (e, -e), (e, e)):
+            out |= ok_at(self._cells(pts + np.array([dx, dy])))
+        return out
+
+    def _route_clear(self) -> bool:
+        return bool(self._in_ok_cells(self.route, self.map.grid.route_safe_at).all())
+
+    def _replan(self, pose: np.ndarray, speed: float = 0.0) -> bool:
+        """Plan route and local corridor from ``pose`` with the reference starting at the
+        measured forward ``speed`` [m/s]; True when the MPC follows a new plan."""
+        route_plan = make_plan(self._route_areas, pose, self.goal, self.robot, self.planner) \
+            if self._route_areas is not None else None
+        if route_plan is not None and route_plan.ok and route_plan.reference is not None:
+            # the reference samples only: they end at the plan's goal (the goal projected
+            # into the route areas when it lies within the inflation of an obstacle), so a
+            # goal close to an obstacle does not make the route look blocked at every step
+            route = route_plan.reference.states[:, :2]
+        else:
+            route = None  # no route even through unknown space: head for the goal's projection
+        target = self._local_goal(route)
+        if target is None:
+            return False
+        local = make_plan(self._areas, pose, target, self.robot, self.planner,
+                          start_speed=speed if self.mpc is not None else 0.0)
+        if not local.ok or local.reference is None or len(local.corridor) == 0:
+            return False
+        self._follow(local, pose)
+        self.route = route
+        self.local_goal = np.asarray(target, dtype=float)
+        self._since_plan = 0
+        self._grown = False
+        return True
+
+    def _local_goal(self, route: np.ndarray | None) -> np.ndarray | None:
+        """The last point of the route's leading stretch in safe cells (the goal itself when
+        the whole route is safe); None when the route does not start in safe cells."""
+        if route is None:
+            return self.goal.copy()
+        safe = self._in_ok_cells(route, self.map.grid.safe_at)
+        if safe.all():
+            return self.goal.copy()
+        first = int(np.argmax(safe))
+        if not safe[first]:
+            return None
+        stop = first + int(np.argmin(safe[first:]))  # first unsafe sample after the safe stretch
+        return route[stop - 1].copy()
+
+    def _follow(self, plan: Plan, pose: np.ndarray) -> None:
+        areas = self._areas
+        u_prev = np.array([0.0, self._turn_w])
+        if self.mpc is None:
+            self.mpc = SAMPC(self.robot, areas, plan, self.mpc_config)
+            self.mpc.reset(pose, u_prev=u_prev)
+        elif self._mpc_fresh:
+            self.mpc.replace_plan(areas, plan)
+            self.mpc.reset(pose, u_prev=u_prev)
+        else:
+            self.mpc.replace_plan(areas, plan)
+        self._mpc_fresh = False
+        self._corridor_rects = np.asarray(areas.rects, dtype=float)[np.asarray(plan.corridor, int)]
+        self.plan_boxes = self._boxes
+
+    def _scan_turn(self, obs: Observation) -> Command:
+        """Turn on the spot (the body stays in the disc it occupies) to see around the robot."""
+        self._turn_steps += 1
+        target = 0.0 if self._turn_steps * self.dt > self.config.max_scan_turn_s else self.config.scan_turn_rate
+        step = self.robot.alpha_max * self.dt  # within the yaw-rate rate bound of the MPC that follows
+        w = float(np.clip(target, self._turn_w - step, self._turn_w + step))
+        self._turn_w = w
+        return Command(v=0.0, w=w, solve_ms=0.0, status="scan_turn", ok=True)

@@ -1,0 +1,62 @@
+"""SensingSAMPC unit checks: the map is built at the measured pose; before its own position is
+observed safe the robot only turns on the spot; configuration errors."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from sanav_mj.control.base import Observation
+from sanav_mj.control.sensing import SensingConfig, SensingSAMPC
+from sanav_mj.mapping.live_grid import OCCUPIED
+from sanav_mj.scene import load_scenario
+
+
+def _ctrl():
+    sc = load_scenario("single_rect")
+    return sc, SensingSAMPC(sc.robot, (-2.0, -3.0, 8.0, 3.0), (6.0, 0.0), sc.robot.footprint_radius + 0.05,
+                            (0.12, 0.0))
+
+
+def _wall_scan(dist: float):
+    """A 180-beam full-circle scan whose forward beams (|angle| <= 10 deg) return at ``dist`` [m]."""
+    angles = np.linspace(-np.pi, np.pi, 180, endpoint=False)
+    hit = np.abs(angles) <= np.radians(10)
+    ranges = np.where(hit, dist, 4.0)
+    return SimpleNamespace(ranges=ranges, hit=hit, angles=angles)
+
+
+@pytest.mark.parametrize("dx", [0.0, 1.0])
+def test_scan_is_placed_at_the_measured_pose(dx):
+    """The same scan at a measured pose 1 m further in x puts its returns exactly 20 cells
+    (1 m at 0.05 m) further: the map follows what the controller measures, noise included."""
+    _, ctrl = _ctrl()
+    ctrl.step(Observation(t=0.0, pose=np.array([dx, 0.0, 0.0]), velocity=np.zeros(2), scan=_wall_scan(2.0)))
+    occ = np.argwhere(ctrl.map.grid.states() == OCCUPIED)
+    cols = occ[:, 1]
+    # returns at x = dx + 0.12 + 2.0 m; grid origin x = -2 m, cells of 0.05 m
+    expected = int(np.floor((dx + 2.12 + 2.0) / 0.05))
+    assert abs(np.median(cols) - expected) <= 1
+
+
+def test_turns_on_the_spot_until_its_own_position_is_observed_safe():
+    _, ctrl = _ctrl()
+    cmd = ctrl.step(Observation(t=0.0, pose=np.zeros(3), velocity=np.zeros(2), scan=_wall_scan(2.0)))
+    # a full-circle scan plus the footprint disc: the robot's cell is safe at once and it plans
+    assert ctrl.mpc is not None and ctrl.records[0].replan == "initial"
+    _, ctrl2 = _ctrl()
+    narrow = _wall_scan(2.0)
+    narrow.hit[:] = False
+    narrow.ranges[:] = 0.05  # sees nothing around: its surroundings stay unknown
+    cmd = ctrl2.step(Observation(t=0.0, pose=np.zeros(3), velocity=np.zeros(2), scan=narrow))
+    assert ctrl2.mpc is None and cmd.status == "scan_turn" and cmd.v == 0.0 and 0 < cmd.w <= 0.4 + 1e-12
+    assert len(ctrl2.records[0].corridor_rects) == 0
+
+
+@pytest.mark.parametrize("kwargs", [{"replan_interval": 0}, {"beam_stride": 0}, {"scan_turn_rate": -1.0},
+                                    {"max_scan_turn_s": float("inf")}, {"replan_interval": True}])
+def test_config_errors_name_the_field(kwargs):
+    with pytest.raises(ValueError, match=next(iter(kwargs))):
+        SensingConfig(**kwargs)

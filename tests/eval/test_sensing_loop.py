@@ -1,0 +1,168 @@
+"""The ``--sensing lidar`` closed loop: SA-MPC on the map its own lidar builds.
+
+Checked per step, through the ``on_step`` hook: every stage box the MPC imposed and every
+corridor rectangle it used (J_SA slots are corridor rectangles) lies in cells that were
+observed safe in the sensed map at that step, and in free cells of the true inflated grid.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sanav_mj.control.sensing import SensingConfig, SensingSAMPC
+from sanav_mj.mapping.live_grid import OCCUPIED
+from sanav_mj.eval.episode import DEFAULT_MARGIN_M, lidar_controller, prepare, run_scenario
+from sanav_mj.scene import load_scenario
+
+
+def _cells_of(box: np.ndarray, origin: np.ndarray, h: float, shape: tuple[int, int]) -> tuple[slice, slice]:
+    """Cells whose interior meets the box (xmin, ymin, xmax, ymax) [m]; tolerance 1e-9 of a cell
+    (box edges lie on cell boundaries up to float rounding of origin + k h)."""
+    ny, nx = shape
+    j0 = int(np.clip(math.floor((box[0] - origin[0]) / h + 1e-9), 0, nx))
+    i0 = int(np.clip(math.floor((box[1] - origin[1]) / h + 1e-9), 0, ny))
+    j1 = int(np.clip(math.ceil((box[2] - origin[0]) / h - 1e-9), 0, nx))
+    i1 = int(np.clip(math.ceil((box[3] - origin[1]) / h - 1e-9), 0, ny))
+    return slice(i0, i1), slice(j0, j1)
+
+
+def _checked_run(scenario, seed: int = 0, yaw=None):
+    """Run with a per-step check of the rectangles the MPC used; returns (outcome, ctrl, checked
+    steps, steps whose boxes were widened towards a robot position outside its box)."""
+    sc = load_scenario(scenario) if isinstance(scenario, (str, Path)) else scenario
+    ctrl = lidar_controller(sc)
+    truth = prepare(sc).grid  # the known-map grid, same inflation and cells
+    checked, relaxed = [], []
+
+    def on_step(step, trace):
+        rec = ctrl.records[step]
+        safe = ctrl.map.grid.safe()
+        g = ctrl.map.grid
+        for r in rec.corridor_rects:
+            cells = _cells_of(r, g.origin, g.resolution, g.shape)
+            assert safe[cells].all(), f"step {step}: corridor rectangle {r} holds unobserved or unsafe cells"
+            assert not truth.occupied[cells].any(), f"step {step}: corridor rectangle {r} is not free in truth"
+        if trace.status[step] in ("ok", "inexact") and ctrl.mpc is not None and ctrl.mpc.last is not None:
+            last = ctrl.mpc.last
+            # undo the documented widening towards a robot position outside its own box
+            # (relax_boxes: each side moves out by how far p0 lies beyond that side of box 0)
+            p0 = last.guess_states[0, :2]
+            below = np.maximum(last.boxes[0, :2] - p0, 0.0)
+            above = np.maximum(p0 - last.boxes[0, 2:], 0.0)
+            boxes = last.boxes[1:] + np.concatenate([below, -above])
+            if below.any() or above.any():
+                relaxed.append(step)
+            for b in boxes:
+                cells = _cells_of(b, g.origin, g.resolution, g.shape)
+                assert safe[cells].all(), f"step {step}: stage box {b} holds unobserved or unsafe cells"
+            checked.append(step)
+
+    out = run_scenario(sc, seed=seed, yaw=yaw, sensing="lidar", controller_obj=ctrl, on_step=on_step)
+    return out, ctrl, checked, relaxed
+
+
+def test_lidar_run_reaches_goal_using_only_observed_free_space():
+    out, ctrl, checked, relaxed = _checked_run("u_shape", seed=0)
+    doc = out.document
+    assert doc["success"] and doc["reason"] == "goal"
+    assert doc["collisions"] == 0
+    assert doc["safe_area_violations"] == 0
+    assert len(checked) > 50  # the check ran on the solved steps
+    assert len(relaxed) < len(checked) // 10
+    # the map was built from scans: it started empty and has unknown space left outside the view
+    states = ctrl.map.grid.states()
+    assert (states == 0).any() and (states != 0).any()
+    # JSON fields
+    assert doc["sensing"] == "lidar"
+    mu = doc["map_update_ms"]
+    assert set(mu) == {"mean", "max", "p99"}
+    assert 0 < mu["mean"] <= mu["max"] and mu["p99"] <= mu["max"]
+    assert doc["replans"] == ctrl.replans and isinstance(doc["replans"], int) and doc["replans"] >= 0
+    assert len(ctrl.map_update_ms) == doc["steps"]  # 20 Hz lidar, 10 Hz control: one scan per step
+    pipe = doc["pipeline_ms"]
+    assert {"mean", "max", "p99"} <= set(pipe) and pipe["mean"] >= doc["solve_ms"]["mean"] - 1e-9
+    json.dumps(doc, allow_nan=False)
+
+
+def test_map_mode_document_has_no_sensing_fields():
+    doc = run_scenario("single_rect", seed=0).document
+    assert "sensing" not in doc and "replans" not in doc and "map_update_ms" not in doc
+
+
+HIDDEN = """<mujoco model="hidden_behind">
+  <include file="{robot}"/>
+  <custom>
+    <numeric name="start" data="0 0 0"/>
+    <numeric name="goal" data="6 0"/>
+  </custom>
+  <worldbody>
+    <geom name="floor" type="plane" pos="3 0 0" size="4 2.5 0.1"/>
+    <geom name="front" type="box" pos="2 0 0.25" size="0.1 0.3 0.25"/>
+    <geom name="hidden" type="box" pos="4 0 0.25" size="0.1 0.25 0.25"/>
+    <site name="goal" pos="6 0 0.01" size="0.1"/>
+  </worldbody>
+</mujoco>
+"""
+
+
+def _hidden_scenario(tmp_path: Path):
+    from sanav_mj.resources import robot_model_path
+
+    path = tmp_path / "hidden_behind.xml"
+    path.write_text(HIDDEN.format(robot=robot_model_path()))
+    return load_scenario(path)
+
+
+def test_obstacle_hidden_behind_another_triggers_a_replan(tmp_path):
+    sc = _hidden_scenario(tmp_path)
+    hx, hy = 3.9, 0.0  # the hidden box's face towards the start
+    out, ctrl, _, _ = _checked_run(sc, seed=0, yaw=0.0)
+    assert out.document["success"] and out.document["collisions"] == 0
+    reasons = [r.replan for r in ctrl.records if r.replan is not None]
+    assert reasons[0] == "initial"
+    # the hidden box was not seen by the first scan: its cells were unknown when the robot planned
+    assert any(reason in ("route", "blocked") for reason in reasons[1:]), reasons
+    # and it is occupied in the final map
+    g = ctrl.map.grid
+    i = int((hy - g.origin[1]) / g.resolution)
+    j = int((hx - g.origin[0]) / g.resolution)
+    assert ctrl.map.grid.states()[i, j - 2 : j + 3].max() == OCCUPIED
+
+
+def test_hidden_obstacle_unknown_at_first_plan(tmp_path):
+    """The initial route (unknown passable) runs through the hidden box: the replan is needed."""
+    sc = _hidden_scenario(tmp_path)
+    ctrl = lidar_controller(sc)
+    routes = []
+
+    def on_step(step, trace):
+        if ctrl.route is not None and not routes:
+            routes.append(ctrl.route.copy())
+
+    run_scenario(sc, seed=0, yaw=0.0, sensing="lidar", controller_obj=ctrl, on_step=on_step, time_limit_s=3.0)
+    route = routes[0]
+    infl = sc.robot.footprint_radius + DEFAULT_MARGIN_M
+    # distance of the first route to the hidden box (x in [3.9, 4.1], y in [-0.25, 0.25])
+    dx = np.maximum(np.abs(route[:, 0] - 4.0) - 0.1, 0.0)
+    dy = np.maximum(np.abs(route[:, 1]) - 0.25, 0.0)
+    assert np.hypot(dx, dy).min() < infl
+
+
+def test_lidar_refuses_other_controllers():
+    with pytest.raises(ValueError, match="sa-mpc"):
+        run_scenario("single_rect", controller="dwa", sensing="lidar")
+    with pytest.raises(ValueError, match="sensing"):
+        run_scenario("single_rect", sensing="radar")
+
+
+def test_sensing_config_validation():
+    with pytest.raises(ValueError, match="replan_interval"):
+        SensingConfig(replan_interval=0)
+    with pytest.raises(ValueError, match="scan_turn_rate"):
+        SensingConfig(scan_turn_rate=float("nan"))
+    assert isinstance(lidar_controller(load_scenario("single_rect")), SensingSAMPC)
