@@ -129,9 +129,19 @@ def cmd_closed_loop(args) -> int:
     import sanav_mj.eval.episode as episode
     from sanav_mj.sim.mismatch import Mismatch
 
-    # Measurement knob: the run path has no margin argument, so the module default is set
-    # for this process only (prepare() reads it when it builds the map).
-    episode.DEFAULT_MARGIN_M = args.margin
+    from dataclasses import replace
+
+    from sanav_mj.control.footprint import disc_centres
+    from sanav_mj.control.spec import ControllerSpec
+
+    if args.footprint == "discs":
+        spec = ControllerSpec("sa-mpc", replace(ControllerSpec().sa_mpc, footprint="discs",
+                                                 footprint_discs=args.discs, footprint_margin=args.margin))
+    else:
+        # Measurement knob: the run path has no margin argument for the circumscribed disc,
+        # so the module default is set for this process only (prepare() reads it).
+        episode.DEFAULT_MARGIN_M = args.margin
+        spec = ControllerSpec("sa-mpc")
     mm = {}
     for item in args.mismatch:
         key, value = item.split("=", 1)
@@ -140,11 +150,18 @@ def cmd_closed_loop(args) -> int:
     t_opt = {r["scenario"]: float(r["t_opt_s"]) for r in csv.DictReader(open(args.worlds))}
     rows = []
     for path in args.scenarios:
-        d = episode.run_scenario(path, seed=0, resolution=args.resolution, mismatch=mismatch).document
+        out = episode.run_scenario(path, seed=args.seed, resolution=args.resolution, mismatch=mismatch,
+                                   controller_spec=spec)
+        d = out.document
         exc = 0.0
         if d["trace"]["x"]:
-            rects = np.asarray(episode.prepare(path, resolution=args.resolution).areas.rects)
-            exc = _excursion(np.column_stack([d["trace"]["x"], d["trace"]["y"]]), rects)
+            rects = np.asarray(out.prepared.areas.rects)
+            xy = np.column_stack([d["trace"]["x"], d["trace"]["y"]])
+            if args.footprint == "discs":  # every disc centre of the cover, true pose
+                offsets = robot_footprint(out.prepared.scenario.model).discs(args.discs)[0]
+                c = disc_centres(np.column_stack([xy, d["trace"]["yaw"]]), offsets)
+                xy = c.reshape(-1, 2)
+            exc = _excursion(xy, rects)
         rows.append({"scenario": d["scenario"], "success": d["success"], "reason": d["reason"],
                      "sim_time_s": d["sim_time_s"], "collisions": d["collisions"],
                      "min_clearance_m": d["min_clearance_m"], "excursion_m": exc,
@@ -154,7 +171,7 @@ def cmd_closed_loop(args) -> int:
     args.out.write_text(json.dumps(rows, indent=1))
     ok = [r for r in rows if r["success"]]
     clr = [r["min_clearance_m"] for r in rows if r["min_clearance_m"] is not None]
-    print(f"margin {args.margin} m, cells {args.resolution} m, mismatch {mm}: success {len(ok)}/{len(rows)}, "
+    print(f"footprint {args.footprint}, margin {args.margin} m, cells {args.resolution} m, mismatch {mm}: success {len(ok)}/{len(rows)}, "
           f"runs with collision {sum(r['collisions'] > 0 for r in rows)}, {dict(Counter(r['reason'] for r in rows))}, "
           f"mean time (successful) {np.mean([r['sim_time_s'] for r in ok]) if ok else float('nan'):.2f} s, "
           f"mean BARN score {np.mean([r['barn_score'] for r in rows]):.3f}, "
@@ -177,6 +194,11 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("scenarios", nargs="+", type=Path)
     c.add_argument("--worlds", type=Path, required=True)
     c.add_argument("--margin", type=float, default=MARGIN)
+    c.add_argument("--footprint", choices=("disc", "discs"), default="disc",
+                   help="disc: circumscribed radius + MARGIN; discs: the N-disc cover's radius + MARGIN "
+                        "and the disc centres in the MPC (MPCConfig.footprint)")
+    c.add_argument("--discs", type=int, default=3, help="discs of the cover (--footprint discs)")
+    c.add_argument("--seed", type=int, default=0)
     c.add_argument("--resolution", type=float, default=0.05)
     c.add_argument("--mismatch", nargs="*", default=[])
     c.add_argument("--out", type=Path, required=True)

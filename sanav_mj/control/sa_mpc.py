@@ -20,6 +20,7 @@ import numpy as np
 
 from sanav_mj.control.adaptation import PlantAdaptation
 from sanav_mj.control.config import MPCConfig
+from sanav_mj.control.footprint import disc_centres
 from sanav_mj.control.problem import build_tracking_ocp
 from sanav_mj.control.stages import (
     CorridorChain,
@@ -317,6 +318,7 @@ class SAMPC(TrackingMPC):
         plan: Plan,
         config: MPCConfig = MPCConfig(),
         *,
+        footprint=None,
         failure_injector: Callable[[int], bool] | None = None,
     ):
         """Build the controller (and its solver, once per process).
@@ -326,12 +328,15 @@ class SAMPC(TrackingMPC):
             areas: the safe areas.
             plan: a successful plan (corridor and reference).
             config: settings.
+            footprint: the robot's footprint rectangle
+                (:class:`sanav_mj.footprint.Footprint`), required when ``config.footprint``
+                is ``"discs"`` (its disc cover gives the constrained points), else unused.
             failure_injector: test hook called with the step index; returning True makes
                 that step's solve count as failed.
 
         Raises:
-            ValueError: the plan failed or has no reference, or the corridor is not a chain
-                of adjacent safe areas.
+            ValueError: the plan failed or has no reference, the corridor is not a chain
+                of adjacent safe areas, or ``"discs"`` without a footprint.
         """
         t0 = time.perf_counter()
         if not plan.ok or plan.reference is None:
@@ -351,7 +356,21 @@ class SAMPC(TrackingMPC):
         pos = {int(a): 2 * i for i, a in enumerate(np.asarray(plan.corridor, int))}
         self._ref_chain = np.array([pos.get(int(a), -1) for a in ref_area], dtype=int)
         self.penalty = SafeAreaPenalty(len(config.q_sa))
-        ocp = build_tracking_ocp(config.horizon, dt, self.penalty, position_constraints=True)
+        if config.footprint == "discs":
+            if footprint is None:
+                raise ValueError("footprint: MPCConfig.footprint='discs' needs the robot's Footprint, got None")
+            offsets, self.disc_radius = footprint.discs(config.footprint_discs)
+            self.disc_offsets = offsets
+            self.points = offsets  # every centre: each has its own stage boxes (see constrain)
+            self._centre_disc = int(np.argmin(np.hypot(*offsets.T)))
+            # the circle the disc centres sweep when turning on the spot about the base origin
+            self.sweep_radius = float(np.max(np.hypot(*offsets.T)))
+            ocp = build_tracking_ocp(config.horizon, dt, self.penalty, position_constraints=True,
+                                     points=offsets)
+        else:
+            self.disc_offsets = self.points = None
+            self.disc_radius = self.sweep_radius = None
+            ocp = build_tracking_ocp(config.horizon, dt, self.penalty, position_constraints=True)
         super().__init__(robot, config, limits, ocp, adaptation, failure_injector=failure_injector)
         self.position_slack = config.box_margin
         self._q_sa = np.asarray(config.q_sa, float)
@@ -374,6 +393,7 @@ class SAMPC(TrackingMPC):
         pose = np.asarray(pose, dtype=float).reshape(3)
         super().reset(pose, u_prev=u_prev, opening_turn=opening_turn)
         self._s_prev: np.ndarray | None = None
+        self._s_prev_d: np.ndarray | None = None
         self.last: StepInfo | None = None
         if progress is not None and not 0 <= progress < len(self.ref_states):
             raise ValueError(f"progress must be a reference index in [0, {len(self.ref_states)}), got {progress!r}")
@@ -390,18 +410,75 @@ class SAMPC(TrackingMPC):
 
     def constrain(self, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray, guess: np.ndarray) -> Constraints:
         """Stage assignment of the guess, stage boxes (relaxed around the measured position),
-        J_SA slots and exit targets of this step (see the class docstring)."""
-        s = assign_stages(self.chain, guess[:, :2], self._first_candidates(), tol=self._check_tol)
-        boxes = stage_boxes(self.chain, s)
-        boxes_c, excursion = relax_boxes(boxes, x0[:2])
-        xr, ur = self._exit_targets(x_ref, u_ref, s, x0[:2], float(x0[2]))
-        con = Constraints(boxes_c[1:, :2].ravel(), boxes_c[1:, 2:].ravel(), self._sa_params(s), xr, ur,
-                          excursion, (s, boxes_c))
-        return con
+        J_SA slots and exit targets of this step (see the class docstring).
+
+        In ``"discs"`` mode each disc centre has its own monotone assignment along the chain
+        and its own stage boxes (the front disc may already be in the next safe area while
+        the rear one is still in the last): every centre in a safe area of the map inflated
+        by the disc radius is all the footprint needs. The centre disc's assignment gives the
+        exit targets and the reported stage data."""
+        if self.points is None:
+            s = assign_stages(self.chain, guess[:, :2], self._first_candidates(self._s_prev), tol=self._check_tol)
+            boxes_c, excursion = relax_boxes(stage_boxes(self.chain, s), x0[:2])
+            xr, ur = self._exit_targets(x_ref, u_ref, s, x0[:2], float(x0[2]))
+            return Constraints(boxes_c[1:, :2].ravel(), boxes_c[1:, 2:].ravel(), self._sa_params(s), xr, ur,
+                               excursion, (s, boxes_c))
+        ss, bs, excursion = self._disc_stages(guess)
+        c = self._centre_disc
+        xr, ur = self._exit_targets(x_ref, u_ref, ss[c], x0[:2], float(x0[2]))
+        lb = bs[:, 1:, :2].transpose(1, 0, 2).ravel()  # stage-major, disc, (x, y)
+        ub = bs[:, 1:, 2:].transpose(1, 0, 2).ravel()
+        key = np.array([ss[:, 0].min(), ss[:, -1].max()])
+        return Constraints(lb, ub, self._sa_params(key), xr, ur, excursion, (ss[c], bs[c], ss, bs))
+
+    def _disc_stages(self, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """Per disc centre of the states ``xs`` (N+1, 3): assignments (D, N+1), relaxed stage
+        boxes (D, N+1, 4) [m] and the largest excursion [m] of a stage-0 centre."""
+        pts = disc_centres(xs, self.points)
+        prev = self._s_prev_d
+        ss, bs, exc = [], [], 0.0
+        for d in range(pts.shape[1]):
+            s = assign_stages(self.chain, pts[:, d], self._first_candidates(None if prev is None else prev[d]),
+                              tol=self._check_tol)
+            b, e = relax_boxes(stage_boxes(self.chain, s), pts[0, d])
+            ss.append(s)
+            bs.append(b)
+            exc = max(exc, e)
+        return np.array(ss), np.array(bs), exc
+
+    def _points(self, xs: np.ndarray) -> np.ndarray:
+        """The constrained points of states ``xs`` (K, 3): positions (K, 2) [m], or the
+        disc centres (K, D, 2) [m] in ``"discs"`` mode."""
+        if self.points is None:
+            return xs[:, :2]
+        return disc_centres(xs, self.points)
+
+    def position_rows(self, xs: np.ndarray) -> np.ndarray:
+        """The position rows of ``g`` for the rollout ``xs`` (N+1, 3): positions or disc centres of stages 1..N."""
+        return self._points(xs[1:]).ravel()
+
+    def turn_allowed(self, x0: np.ndarray) -> bool:
+        """``"disc"``: always. ``"discs"``: the circle of radius :attr:`sweep_radius` about the
+        position (where the disc centres go when turning on the spot) fits in one stay box
+        of the corridor chain (shrunk by ``box_margin``), so every disc stays clear during
+        the turn (map inflated by the disc radius)."""
+        if self.sweep_radius is None:
+            return True
+        st = self.chain.stay
+        sl = np.minimum(np.minimum(x0[0] - st[:, 0], st[:, 2] - x0[0]), np.minimum(x0[1] - st[:, 1], st[:, 3] - x0[1]))
+        return bool(sl.max() >= self.sweep_radius)
+
+    def state_clearance(self, xs: np.ndarray) -> np.ndarray:
+        """(P,) [m] slack of the states (P, 3) over the chain's members: of their constrained
+        points, the worst one's."""
+        pts = self._points(xs)
+        if pts.ndim == 2:
+            return chain_slack(self.chain, pts)
+        return np.min([chain_slack(self.chain, pts[:, d]) for d in range(pts.shape[1])], axis=0)
 
     def _pose(self, x0, con, u_guess, guess):
         prob = super()._pose(x0, con, u_guess, guess)
-        s, boxes_c = con.context
+        s, boxes_c = con.context[:2]
         n = self.N
         self.last = StepInfo(s, boxes_c, u_guess, guess, con.x_ref, con.u_ref, self._u_prev.copy(),
                              prob.z_lb.reshape(n, 2), prob.z_ub.reshape(n, 2), self._rate_step)
@@ -409,19 +486,30 @@ class SAMPC(TrackingMPC):
 
     def describe(self, xs: np.ndarray, x0: np.ndarray, context) -> tuple[np.ndarray, np.ndarray]:
         """Safe-area ids (N+1,) and box margins (N+1,) [m] of an applied plan."""
-        s, boxes = context
-        margins = np.concatenate(([box_slack(x0[None, :2], boxes[:1])[0]], box_slack(xs[1:, :2], boxes[1:])))
+        s, boxes = context[:2]
+        if self.points is None:
+            margins = np.concatenate(([box_slack(x0[None, :2], boxes[:1])[0]], box_slack(xs[1:, :2], boxes[1:])))
+        else:  # the smallest slack of any disc centre in its own stage box
+            pts = self._points(np.vstack((x0[None], xs[1:])))
+            bs = context[3]
+            margins = np.min([box_slack(pts[:, d], bs[d]) for d in range(pts.shape[1])], axis=0)
         return self._rect_ids(s, xs[:, :2]), margins
 
     def turn_context(self, x0: np.ndarray, xs: np.ndarray):
         """Stage assignment and boxes of an opening-turn plan."""
-        s = assign_stages(self.chain, xs[:, :2], self._first_candidates(), tol=self._check_tol)
+        if self.points is not None:
+            ss, bs, _ = self._disc_stages(np.vstack((x0[None], xs[1:])))
+            c = self._centre_disc
+            return ss[c], bs[c], ss, bs
+        s = assign_stages(self.chain, xs[:, :2], self._first_candidates(self._s_prev), tol=self._check_tol)
         boxes, _ = relax_boxes(stage_boxes(self.chain, s), x0[:2])
         return s, boxes
 
     def commit(self, context) -> None:
         """Keep the stage assignment of the applied plan (anchors the next assignment)."""
         self._s_prev = context[0]
+        if len(context) > 2:
+            self._s_prev_d = context[2]
 
     def clearance(self, points: np.ndarray) -> np.ndarray:
         """(P,) [m] largest slack of each point (P, 2) over the corridor chain's members (negative: outside all)."""
@@ -464,12 +552,13 @@ class SAMPC(TrackingMPC):
         """Reference pulled into reach (:func:`~sanav_mj.control.stages.exit_targets`)."""
         return exit_targets(self.chain, self._ref_chain[self._horizon_idx], xr, ur, s, p0, yaw0)
 
-    def _first_candidates(self) -> np.ndarray | None:
-        """Members allowed for stage 0: within two of the previous anchor (None at a cold start)."""
-        if self._s_prev is None:
+    def _first_candidates(self, s_prev: np.ndarray | None) -> np.ndarray | None:
+        """Members allowed for stage 0: within two of the previous assignment ``s_prev``'s
+        anchor (None at a cold start)."""
+        if s_prev is None:
             return None
         L = len(self.chain)
-        anchor = int(self._s_prev[1])
+        anchor = int(s_prev[1])
         cand = np.zeros(L, dtype=bool)
         cand[max(0, anchor - 2) : min(L, anchor + 3)] = True
         return cand

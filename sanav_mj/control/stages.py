@@ -175,7 +175,9 @@ def assign_stages(
 
     Args:
         chain: the corridor chain.
-        guess: (N+1, 2) [m] guessed positions, ``guess[0]`` the measured one.
+        guess: (N+1, 2) [m] guessed positions, ``guess[0]`` the measured one; or
+            (N+1, D, 2) [m] D points per stage (footprint disc centres), a stage's distance
+            being the largest of its points'.
         first_candidates: (L,) bool, members allowed for ``s(0)`` (None: all). Ignored when
             ``guess[0]`` is farther than ``reanchor_distance`` [m] from all of them.
         tol: [m] distances below this count as zero.
@@ -186,7 +188,11 @@ def assign_stages(
     """
     n1 = guess.shape[0]
     L = len(chain)
-    d2 = _outside_sq(guess, np.concatenate((chain.stay, chain.advance)))
+    both = np.concatenate((chain.stay, chain.advance))
+    if guess.ndim == 3:  # several points per stage (footprint disc centres): the worst one counts
+        d2 = np.max([_outside_sq(guess[:, d], both) for d in range(guess.shape[1])], axis=0)
+    else:
+        d2 = _outside_sq(guess, both)
     d2[d2 < tol * tol] = 0.0
     if L <= 62:
         s = assign_feasible(d2, L, first_candidates, reanchor_distance)
@@ -368,14 +374,22 @@ def relax_boxes(boxes: np.ndarray, p0: np.ndarray) -> tuple[np.ndarray, float]:
     side of the stage-0 box (see "Measured position outside its box" in
     :class:`~sanav_mj.control.sa_mpc.SAMPC`).
 
+    ``p0`` may also be (D, 2) [m], several points of the measured state (footprint disc
+    centres): each side is widened by the farthest point beyond it.
+
     Returns the boxes (N+1, 4) [m] and the excursion [m]: the distance of ``p0`` outside the
-    stage-0 box (0 inside).
+    stage-0 box (0 inside; for several points the largest).
     """
-    below = np.maximum(boxes[0, :2] - p0, 0.0)
-    above = np.maximum(p0 - boxes[0, 2:], 0.0)
+    p0 = np.asarray(p0, dtype=float)
+    pts = p0.reshape(-1, 2)
+    below_p = np.maximum(boxes[0, :2] - pts, 0.0)
+    above_p = np.maximum(pts - boxes[0, 2:], 0.0)
+    below, above = below_p.max(axis=0), above_p.max(axis=0)
     if not (below.any() or above.any()):
         return boxes, 0.0
     out = boxes.copy()
     out[1:, :2] -= below
     out[1:, 2:] += above
-    return out, float(np.hypot(*(below + above)))
+    if p0.ndim == 1:
+        return out, float(np.hypot(*(below + above)))
+    return out, float(np.max(np.hypot(*(below_p + above_p).T)))

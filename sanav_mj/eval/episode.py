@@ -101,6 +101,19 @@ def planner_config(robot, spec: ControllerSpec = ControllerSpec()) -> Any:
     )
 
 
+def map_inflation(scenario: Scenario, spec: ControllerSpec = ControllerSpec()) -> float:
+    """[m] obstacle inflation of the map for ``spec``'s SA-MPC footprint mode: the
+    circumscribed radius + :data:`DEFAULT_MARGIN_M` (``"disc"``), or the radius of the
+    ``footprint_discs``-disc cover of the footprint rectangle + ``footprint_margin``
+    (``"discs"``, see :class:`~sanav_mj.control.config.MPCConfig`)."""
+    mpc = spec.sa_mpc
+    if mpc.footprint == "discs":
+        from sanav_mj.footprint import robot_footprint
+
+        return robot_footprint(scenario.model).discs(mpc.footprint_discs)[1] + mpc.footprint_margin
+    return scenario.robot.footprint_radius + DEFAULT_MARGIN_M
+
+
 def prepare(
     spec: str | Path | Scenario,
     resolution: float = 0.05,
@@ -121,7 +134,7 @@ def prepare(
     from sanav_mj.planning import plan as make_plan
 
     scenario = spec if isinstance(spec, Scenario) else load_scenario(spec)
-    inflation = scenario.robot.footprint_radius + DEFAULT_MARGIN_M
+    inflation = map_inflation(scenario, controller)
     try:
         m = build_map(scenario.obstacles, scenario.bounds, inflation, MapConfig(resolution=resolution, merge=merge))
     except MapMemoryError as err:  # name the file too (ScenarioError: exit 2)
