@@ -569,7 +569,7 @@ class SAMPC(TrackingMPC):
         theta = self._sa_cache.get(key)
         if theta is None:
             theta = safe_area_params(self.chain, self._rects, key, self.penalty.n_slots, self._q_sa,
-                                     self.config.box_margin)
+                                     self.config.box_margin, all_or_none=self.points is not None)
             self._sa_cache[key] = theta
         return theta
 

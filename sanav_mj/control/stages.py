@@ -342,15 +342,20 @@ def exit_targets(
 
 
 def safe_area_params(chain: CorridorChain, rects: np.ndarray, members: tuple[int, int], slots: int,
-                     q_sa: np.ndarray, margin: float) -> np.ndarray:
+                     q_sa: np.ndarray, margin: float, all_or_none: bool = False) -> np.ndarray:
     """J_SA slot parameters (6 * slots,) (see :class:`SafeAreaPenalty`): the distinct safe
     areas of chain members ``members[0]..members[1]``, in order, shrunk by ``margin`` [m],
-    with priorities ``q_sa`` (slots,); unused slots inactive."""
+    with priorities ``q_sa`` (slots,); unused slots inactive. When there are more areas than
+    slots the first ``slots`` are used, or, with ``all_or_none``, none (every slot inactive,
+    J_SA a constant): a partial set penalises a point for being in an area it leaves out,
+    which held the front disc of a footprint back from areas its hard rows allow."""
     ids: list[int] = []
     for pair in chain.rect_pair[members[0] : members[1] + 1]:
         for r in pair:
             if int(r) not in ids:
                 ids.append(int(r))
+    if all_or_none and len(ids) > slots:
+        ids = []
     ids = ids[:slots]
     theta = np.zeros((slots, 6))
     theta[: len(ids), :4] = shrink_box(rects[ids], margin)
