@@ -139,7 +139,8 @@ def cmd_closed_loop(args) -> int:
 
     if args.footprint == "discs":
         spec = ControllerSpec("sa-mpc", replace(ControllerSpec().sa_mpc, footprint="discs",
-                                                 footprint_discs=args.discs, footprint_margin=args.margin))
+                                                 footprint_discs=args.discs, footprint_margin=args.margin,
+                                                 footprint_narrow_penalty=args.narrow_penalty))
     else:
         # Measurement knob: the run path has no margin argument for the circumscribed disc,
         # so the module default is set for this process only (prepare() reads it).
@@ -212,6 +213,8 @@ def main(argv: list[str] | None = None) -> int:
                         "and the disc centres in the MPC (MPCConfig.footprint)")
     c.add_argument("--discs", type=int, default=3, help="discs of the cover (--footprint discs)")
     c.add_argument("--seeds", type=int, nargs="+", default=[0])
+    c.add_argument("--narrow-penalty", type=float, default=1.0,
+                   help="[m] discs mode: corridor weight added per edge through a place too narrow to turn")
     c.add_argument("--resolution", type=float, default=0.05)
     c.add_argument("--mismatch", nargs="*", default=[])
     c.add_argument("--out", type=Path, required=True)

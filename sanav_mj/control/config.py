@@ -242,6 +242,10 @@ class MPCConfig(TrackingConfig):
             MPC turns, under the disc rows). See :mod:`sanav_mj.control.footprint`.
         footprint_discs: number of discs of the ``"discs"`` cover (>= 2).
         footprint_margin: [m] inflation margin beyond the disc radius in ``"discs"`` mode.
+        footprint_narrow_penalty: [m] ``"discs"`` mode: added to the corridor search's weight
+            of every edge through a place where the circumscribed-disc map has no room
+            (:func:`sanav_mj.eval.episode.planning_areas`), so the corridor keeps to passages
+            where the robot can turn when they are not much longer; 0: shortest corridor.
     """
 
     q_sa: tuple[float, ...] = (5.0, 5.0)
@@ -251,6 +255,7 @@ class MPCConfig(TrackingConfig):
     footprint: str = "disc"
     footprint_discs: int = 3
     footprint_margin: float = 0.05
+    footprint_narrow_penalty: float = 1.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -272,6 +277,9 @@ class MPCConfig(TrackingConfig):
         fm = self.footprint_margin
         if not (isinstance(fm, (int, float)) and math.isfinite(fm) and 0 <= fm < 1):
             raise ValueError(f"MPCConfig.footprint_margin must be in [0, 1) m, got {fm!r}")
+        fp = self.footprint_narrow_penalty
+        if not (isinstance(fp, (int, float)) and math.isfinite(fp) and fp >= 0):
+            raise ValueError(f"MPCConfig.footprint_narrow_penalty must be a finite number >= 0 m, got {fp!r}")
 
     def tracking(self) -> TrackingConfig:
         """The core's part of this configuration (the same values)."""

@@ -152,3 +152,26 @@ def test_map_inflation_follows_the_footprint_mode():
     assert map_inflation(sc) == sc.robot.footprint_radius + DEFAULT_MARGIN_M
     spec = ControllerSpec("sa-mpc", replace(MPCConfig(), footprint="discs", footprint_margin=0.03))
     assert map_inflation(sc, spec) == pytest.approx(math.hypot(0.25 / 3, 0.215) + 0.03, abs=1e-9)
+
+
+def test_safe_area_slots_all_or_none_when_the_discs_span_more_areas():
+    """Three areas under two slots: the partial set (first two) would charge a disc in the
+    third area; all-or-none switches J_SA off instead (every slot inactive: J_SA = 1, constant)."""
+    from sanav_mj.control.stages import safe_area_params
+
+    areas = make_areas(L_RECTS)
+    plan = make_plan(areas, [0, 1], L_WAYPOINTS)
+    chain = CorridorChain.build(areas, plan.corridor)  # members R0, B01, R1: areas 0, 1
+    rects = np.asarray(areas.rects)
+    q = np.array([5.0, 5.0])
+    part = safe_area_params(chain, rects, (0, 2), 1, q[:1], 0.0).reshape(1, 6)
+    np.testing.assert_allclose(part[0], [*rects[0], 5.0, 1.0])  # first area only
+    none = safe_area_params(chain, rects, (0, 2), 1, q[:1], 0.0, all_or_none=True).reshape(1, 6)
+    assert none[0, 5] == 0.0
+    both = safe_area_params(chain, rects, (0, 2), 2, q, 0.0, all_or_none=True).reshape(2, 6)
+    np.testing.assert_allclose(both[:, 5], [1.0, 1.0])  # they fit: unchanged
+    # in the controller: a disc in area 1 is not charged when the assignment spans both
+    ctl = SAMPC(ROBOT, areas, plan, replace(DISCS, q_sa=(5.0,)), footprint=FP)
+    theta = ctl._sa_params(np.array([0, 2]))
+    assert SafeAreaPenalty.value_np(np.array([3.5, 3.0]), theta.reshape(1, 6)[:, :4], theta.reshape(1, 6)[:, 4] * 0 + 5) > 0
+    assert theta.reshape(1, 6)[0, 5] == 0.0
