@@ -34,7 +34,8 @@ def _corridor_controller(half_width: float, length: float = 3.0, cfg: MPCConfig 
 @pytest.mark.parametrize(
     "kw, match",
     [(dict(footprint="rectangle"), "footprint"), (dict(footprint_discs=1), "footprint_discs"),
-     (dict(footprint_margin=-0.01), "footprint_margin")],
+     (dict(footprint_margin=-0.01), "footprint_margin"),
+     (dict(footprint_narrow_penalty=-1.0), "footprint_narrow_penalty")],
 )
 def test_config_rejects_bad_footprint_fields(kw, match):
     with pytest.raises(ValueError, match=match):
@@ -152,6 +153,21 @@ def test_map_inflation_follows_the_footprint_mode():
     assert map_inflation(sc) == sc.robot.footprint_radius + DEFAULT_MARGIN_M
     spec = ControllerSpec("sa-mpc", replace(MPCConfig(), footprint="discs", footprint_margin=0.03))
     assert map_inflation(sc, spec) == pytest.approx(math.hypot(0.25 / 3, 0.215) + 0.03, abs=1e-9)
+
+
+def test_planning_areas_penalise_only_in_discs_mode():
+    from sanav_mj.control.spec import ControllerSpec
+    from sanav_mj.eval.episode import planning_areas, prepare
+    from sanav_mj.scene import load_scenario
+
+    sc = load_scenario("v_shape")
+    spec = ControllerSpec("sa-mpc", replace(MPCConfig(), footprint="discs", footprint_narrow_penalty=0.7))
+    areas = prepare(sc, controller=spec).areas
+    assert planning_areas(areas, sc) is areas
+    out = planning_areas(areas, sc, spec)
+    narrow = out.weights != areas.weights
+    assert narrow.any() and not narrow.all()
+    np.testing.assert_array_equal(out.weights[narrow], areas.weights[narrow] + 0.7)
 
 
 def test_safe_area_slots_all_or_none_when_the_discs_span_more_areas():
