@@ -97,8 +97,11 @@ class SAMPC(TrackingMPC):
     (monitor, pose filter, latency compensation, derating, traction limit) is
     :class:`~sanav_mj.control.adaptation.PlantAdaptation`. This class adds the safe-area
     constraints and cost (:meth:`constrain`: stage assignment, stage boxes, J_SA slots, exit
-    targets); footprint-true constraints would extend :meth:`constrain` and the OCP's
-    position rows (see :mod:`sanav_mj.control.tracking`).
+    targets). With ``MPCConfig.footprint="discs"`` the OCP's position rows are the centres of
+    the footprint's disc cover (:mod:`sanav_mj.control.footprint`) instead of the position,
+    each centre with its own stage assignment and boxes in a map inflated by the disc radius
+    (see :meth:`constrain`, :meth:`turn_allowed`); docs/results.md ("Tight spaces") gives
+    what it measured.
 
     Each step: update the actuation monitor with the measured velocity, filter the measured
     pose with the measured velocity, predict the state
