@@ -191,3 +191,30 @@ def test_safe_area_slots_all_or_none_when_the_discs_span_more_areas():
     theta = ctl._sa_params(np.array([0, 2]))
     assert SafeAreaPenalty.value_np(np.array([3.5, 3.0]), theta.reshape(1, 6)[:, :4], theta.reshape(1, 6)[:, 4] * 0 + 5) > 0
     assert theta.reshape(1, 6)[0, 5] == 0.0
+
+
+def test_a_stalled_discs_controller_tries_the_escape_guesses_in_turn():
+    from sanav_mj.control.sa_mpc import STALL_STEPS, escape_guesses
+    from sanav_mj.control.tracking import ActivePlan
+
+    ctl = _corridor_controller(0.05)
+    ctl.reset(np.array([1.0, 0.0, 0.0]), progress=5)
+    rest = np.zeros((ctl.N, 2))
+    ctl._active = ActivePlan(rest.copy(), 1, y=np.ones(3))
+    esc = escape_guesses(ctl.N)
+    for _ in range(STALL_STEPS - 1):  # at rest, not yet long enough: the shifted plan
+        np.testing.assert_array_equal(ctl._guess_inputs(), rest)
+    np.testing.assert_array_equal(ctl._guess_inputs(), esc[0])
+    assert ctl._active.y is None  # no multipliers of the abandoned plan
+    np.testing.assert_array_equal(ctl._guess_inputs(), esc[1])
+    ctl._u_prev = np.array([0.3, 0.0])  # moving again: back to the shifted plan
+    np.testing.assert_array_equal(ctl._guess_inputs(), rest)
+    # the escapes respect the terminal stop and start from rest within one ramp step
+    for g in esc:
+        assert g.shape == (ctl.N, 2) and np.all(g[-1] == 0) and np.all(np.abs(g[0]) <= np.array([0.2, 1.5]) / 3 + 1e-12)
+    # the paper's mode never escapes
+    point = _corridor_controller(0.05, cfg=replace(DISCS, footprint="disc"))
+    point.reset(np.array([1.0, 0.0, 0.0]), progress=5)
+    point._active = ActivePlan(rest.copy(), 1)
+    for _ in range(STALL_STEPS + 2):
+        np.testing.assert_array_equal(point._guess_inputs(), rest)
