@@ -20,7 +20,7 @@ import numpy as np
 
 from sanav_mj.control.adaptation import PlantAdaptation
 from sanav_mj.control.config import MPCConfig
-from sanav_mj.control.footprint import disc_centres
+from sanav_mj.control.disc_stages import DiscCover, StallEscape
 from sanav_mj.control.problem import build_tracking_ocp
 from sanav_mj.control.stages import (
     CorridorChain,
@@ -29,6 +29,7 @@ from sanav_mj.control.stages import (
     box_slack,
     chain_slack,
     exit_targets,
+    first_candidates,
     relax_boxes,
     safe_area_params,
     stage_boxes,
@@ -57,23 +58,6 @@ def _resample(ref: Reference, dt: float) -> tuple[np.ndarray, np.ndarray, np.nda
     inputs = np.stack([np.interp(tn, t, ref.inputs[:, i]) for i in range(2)], axis=1)
     area = np.asarray(ref.area, int)[np.minimum(np.rint(tn / ref.dt).astype(int), k - 1)]
     return states, inputs, area
-
-
-#: ``"discs"`` mode: steps at rest before an escape guess is tried (see ``SAMPC._guess_inputs``).
-STALL_STEPS = 3
-
-
-def escape_guesses(horizon: int) -> list[np.ndarray]:
-    """Escape warm starts (each (N, 2) [m/s, rad/s]) for a stalled ``"discs"`` SA-MPC: forward
-    at 0.2 m/s turning left / right at 1 rad/s, the same reversing, and turning on the spot at
-    +-1.5 rad/s; each ramps up over 3 steps, is held to step 10 and then rests (the terminal
-    stop). They only seed the solver and the stage assignment."""
-    k = np.arange(horizon)
-    ramp = np.where(k < 10, np.minimum(1.0, (k + 1) / 3.0), 0.0)
-    out = []
-    for v, w in ((0.2, 1.0), (0.2, -1.0), (-0.2, 1.0), (-0.2, -1.0), (0.0, 1.5), (0.0, -1.5)):
-        out.append(np.column_stack((v * ramp, w * ramp)))
-    return out
 
 
 @dataclass(frozen=True)
@@ -191,59 +175,9 @@ class SAMPC(TrackingMPC):
     out, the slower, which shortens the stopping distance and the distance driven on a
     wrong model before the next measurement.
 
-    **Derating by tracking residual.** Slip (low friction), a saturated actuator (small
-    torque limit) or a delay beyond what the monitor identifies make the measured body
-    velocity differ from the identified response to the sent commands. The monitor's RMS
-    residual over its forgetting window lowers the speed bound like an excursion does
-    (``AdaptationConfig.residual_stop``): a plant that does not do what it is told is driven
-    slowly, down to ``residual_floor v_max``, so that its braking distance and the error
-    it accumulates per period shrink with the speed.
-
-    The same fraction lowers the yaw-rate bound (not below ``residual_yaw_floor w_max``):
-    at low friction with an over-turning plant the loop weaves at up to +-2 rad/s while
-    driving at 0.8 m/s, asking for more lateral acceleration than the floor gives; derating
-    both inputs cuts the asked-for ``v w`` with the square of the fraction.
-
-    **Traction limit.** The residual measures the tracking error, not the braking
-    capability: on a floor with 0.36-0.49 m/s^2 of grip (friction 0.05) the identified
-    speed gain drops to its clamp, absorbs the slow ramp, and the residual stays near
-    0.04 m/s while the commanded speed runs 0.5 m/s ahead of the measured one; the robot
-    reached 0.93 m/s with the model braking at 1.5 m/s^2 and slid out of its corridor at a
-    corner. The monitor flags slip when the measured speed stays more than
-    ``monitor.slip_gap`` from the commands of *every* candidate delay (a delayed plant with
-    grip reaches the command of its delay, so it is not mistaken for a slipping one), and
-    keeps the largest speed change per period the body achieved (a lower bound of the grip;
-    periods of fast turning excluded). While slip is seen, the rate bound of the speed
-    becomes ``traction_probe`` times that grip (not below ``traction_floor a_max``); every
-    bound derived from ``a_max`` follows, per solve: the rate constraints, the speed bounds
-    implied by the terminal stop (so each plan can stop inside its stage boxes at the
-    grip the plant showed) and the braking fallback. Without slip the bound recovers by
-    ``traction_recovery`` per step. In the envelope and the nominal runs the flag is never
-    raised, so nothing changes there (every run bit-identical); a plant whose gain error
-    exceeds about 15 % at speed is flagged like a slipping one (docs/robustness.md).
-
-    **Pose filter.** Before anything else the measured pose is fused with the measured body
-    velocity by a :class:`~sanav_mj.control.monitor.PoseFilter` (an EKF whose measurement
-    noise is identified online from the lag-one covariance of the measurement increments
-    against the odometry, so slip is not taken for noise). A noise-free pose (nominal, and
-    on a slipping floor) is returned exactly, so the nominal controller is unchanged; under
-    white noise of 5-20 cm the estimate's error is a third to a seventh of the
-    measurement's (synthetic check). A real jump (relocalisation) is followed after the
-    filter's consistency restart.
-
-    **Latency compensation.** A plant that applies each command ``d`` control steps late
-    (actuator and communication latency) makes an MPC that plans from the measured state
-    weave: its first input takes effect ``d dt`` later than it assumes. The controller knows
-    the commands it sent; the :class:`~sanav_mj.control.monitor.ActuationMonitor` identifies
-    ``d`` (0..``monitor.max_delay``) and the gains ``(g_v, g_w)`` online from the measured body
-    velocity (least squares with forgetting, per candidate delay; smallest residual wins,
-    with hysteresis). Each step rolls the measured pose forward through the ``d`` commands
-    already sent and not yet applied (scaled by the gains) and poses the problem from that
-    predicted state, with the last sent input as ``u_prev``. The stage-0 position of every
-    argument below is then that prediction; the positions between the measurement and it
-    were planned by the earlier solves that sent those commands. Assumed: the delay is an
-    integer number of periods and constant over the forgetting horizon (about 2 s); a wrong
-    estimate shows up as tracking error like any other mismatch.
+    **Derating by tracking residual, traction limit, pose filter, latency compensation**: the
+    plant adaptation's mechanisms, described with their measurements in
+    :mod:`sanav_mj.control.adaptation`.
 
     **Recursive feasibility** (nominal model, no disturbance, converged solves, the default
     ``terminal_stop``): let ``u*`` be the previous plan with positions ``p*_0..p*_N`` and
@@ -376,21 +310,14 @@ class SAMPC(TrackingMPC):
         pos = {int(a): 2 * i for i, a in enumerate(np.asarray(plan.corridor, int))}
         self._ref_chain = np.array([pos.get(int(a), -1) for a in ref_area], dtype=int)
         self.penalty = SafeAreaPenalty(len(config.q_sa))
+        self.discs: DiscCover | None = None
         if config.footprint == "discs":
             if footprint is None:
                 raise ValueError("footprint: MPCConfig.footprint='discs' needs the robot's Footprint, got None")
-            offsets, self.disc_radius = footprint.discs(config.footprint_discs)
-            self.disc_offsets = offsets
-            self.points = offsets  # every centre: each has its own stage boxes (see constrain)
-            self._centre_disc = int(np.argmin(np.hypot(*offsets.T)))
-            # the circle the disc centres sweep when turning on the spot about the base origin
-            self.sweep_radius = float(np.max(np.hypot(*offsets.T)))
-            ocp = build_tracking_ocp(config.horizon, dt, self.penalty, position_constraints=True,
-                                     points=offsets)
-        else:
-            self.disc_offsets = self.points = None
-            self.disc_radius = self.sweep_radius = None
-            ocp = build_tracking_ocp(config.horizon, dt, self.penalty, position_constraints=True)
+            self.discs = DiscCover.of(footprint, config.footprint_discs)
+            self._escape = StallEscape(config.horizon)
+        pts = None if self.discs is None else self.discs.offsets
+        ocp = build_tracking_ocp(config.horizon, dt, self.penalty, position_constraints=True, points=pts)
         super().__init__(robot, config, limits, ocp, adaptation, failure_injector=failure_injector)
         self.position_slack = config.box_margin
         self._q_sa = np.asarray(config.q_sa, float)
@@ -414,8 +341,8 @@ class SAMPC(TrackingMPC):
         super().reset(pose, u_prev=u_prev, opening_turn=opening_turn)
         self._s_prev: np.ndarray | None = None
         self._s_prev_d: np.ndarray | None = None
-        self._still = 0
-        self._escape_index = 0
+        if self.discs is not None:
+            self._escape.reset()
         self.last: StepInfo | None = None
         if progress is not None and not 0 <= progress < len(self.ref_states):
             raise ValueError(f"progress must be a reference index in [0, {len(self.ref_states)}), got {progress!r}")
@@ -432,98 +359,44 @@ class SAMPC(TrackingMPC):
 
     def constrain(self, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray, guess: np.ndarray) -> Constraints:
         """Stage assignment of the guess, stage boxes (relaxed around the measured position),
-        J_SA slots and exit targets of this step (see the class docstring).
-
-        In ``"discs"`` mode each disc centre has its own monotone assignment along the chain
-        and its own stage boxes (the front disc may already be in the next safe area while
-        the rear one is still in the last): every centre in a safe area of the map inflated
-        by the disc radius is all the footprint needs. The centre disc's assignment gives the
-        exit targets and the reported stage data."""
-        if self.points is None:
-            s = assign_stages(self.chain, guess[:, :2], self._first_candidates(self._s_prev), tol=self._check_tol)
+        J_SA slots and exit targets of this step (see the class docstring); in ``"discs"``
+        mode per disc centre (:meth:`DiscCover.stages`)."""
+        if self.discs is None:
+            s = assign_stages(self.chain, guess[:, :2], first_candidates(len(self.chain), self._s_prev),
+                              tol=self._check_tol)
             boxes_c, excursion = relax_boxes(stage_boxes(self.chain, s), x0[:2])
             xr, ur = self._exit_targets(x_ref, u_ref, s, x0[:2], float(x0[2]))
             return Constraints(boxes_c[1:, :2].ravel(), boxes_c[1:, 2:].ravel(), self._sa_params(s), xr, ur,
                                excursion, (s, boxes_c))
-        ss, bs, excursion = self._disc_stages(guess)
-        c = self._centre_disc
+        ss, bs, excursion = self.discs.stages(self.chain, guess, self._s_prev_d, self._check_tol)
+        c = self.discs.centre
         xr, ur = self._exit_targets(x_ref, u_ref, ss[c], x0[:2], float(x0[2]))
-        lb = bs[:, 1:, :2].transpose(1, 0, 2).ravel()  # stage-major, disc, (x, y)
-        ub = bs[:, 1:, 2:].transpose(1, 0, 2).ravel()
         key = np.array([ss[:, 0].min(), ss[:, -1].max()])
-        return Constraints(lb, ub, self._sa_params(key), xr, ur, excursion, (ss[c], bs[c], ss, bs))
-
-    def _disc_stages(self, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """Per disc centre of the states ``xs`` (N+1, 3): assignments (D, N+1), relaxed stage
-        boxes (D, N+1, 4) [m] and the largest excursion [m] of a stage-0 centre."""
-        pts = disc_centres(xs, self.points)
-        prev = self._s_prev_d
-        ss, bs, exc = [], [], 0.0
-        for d in range(pts.shape[1]):
-            s = assign_stages(self.chain, pts[:, d], self._first_candidates(None if prev is None else prev[d]),
-                              tol=self._check_tol)
-            b, e = relax_boxes(stage_boxes(self.chain, s), pts[0, d])
-            ss.append(s)
-            bs.append(b)
-            exc = max(exc, e)
-        return np.array(ss), np.array(bs), exc
+        return Constraints(*DiscCover.bounds(bs), self._sa_params(key), xr, ur, excursion, (ss[c], bs[c], ss, bs))
 
     def _guess_inputs(self) -> np.ndarray:
-        """The warm start (:meth:`TrackingMPC._guess_inputs`); in ``"discs"`` mode, once the
-        applied input has stayed at rest (``|v| < 0.02 m/s``, ``|w| < 0.05 rad/s``) for
-        :data:`STALL_STEPS` steps away from the end of the reference, the next of
-        :func:`escape_guesses` instead (and no warm-start multipliers).
-
-        The stage assignment follows the guess: from a plan at rest it never advances, and
-        with the footprint's discs in slivers the solver's optimum from there can be to stay
-        (a local minimum of the non-convex problem; measured on the BARN-like worlds: 27 of
-        100 runs stopped so). A guess that moves and turns gives other assignments and
-        another start; the solution is still checked against every constraint as usual."""
+        """The warm start; in ``"discs"`` mode an escape guess once stalled (:class:`StallEscape`)."""
         u = super()._guess_inputs()
-        if self.points is None:
+        if self.discs is None or self._active is None:
             return u
-        moving = abs(self._u_prev[0]) >= 0.02 or abs(self._u_prev[1]) >= 0.05
-        at_end = self._ref_index >= len(self.ref_states) - 5
-        self._still = 0 if (moving or at_end) else self._still + 1
-        if self._still < STALL_STEPS or self._active is None:
+        g = self._escape.next_guess(self._u_prev, self._ref_index >= len(self.ref_states) - 5)
+        if g is None:
             return u
-        escapes = escape_guesses(self.N)
-        g = escapes[self._escape_index % len(escapes)]
-        self._escape_index += 1
-        self._active.y = None
-        self._active.y_z = None
+        self._active.y = self._active.y_z = None  # no multipliers of the abandoned plan
         self.stats.count("escape")
         return g
 
-    def _points(self, xs: np.ndarray) -> np.ndarray:
-        """The constrained points of states ``xs`` (K, 3): positions (K, 2) [m], or the
-        disc centres (K, D, 2) [m] in ``"discs"`` mode."""
-        if self.points is None:
-            return xs[:, :2]
-        return disc_centres(xs, self.points)
-
     def position_rows(self, xs: np.ndarray) -> np.ndarray:
         """The position rows of ``g`` for the rollout ``xs`` (N+1, 3): positions or disc centres of stages 1..N."""
-        return self._points(xs[1:]).ravel()
+        return (xs[1:, :2] if self.discs is None else self.discs.centres(xs[1:])).ravel()
 
     def turn_allowed(self, x0: np.ndarray) -> bool:
-        """``"disc"``: always. ``"discs"``: the circle of radius :attr:`sweep_radius` about the
-        position (where the disc centres go when turning on the spot) fits in one stay box
-        of the corridor chain (shrunk by ``box_margin``), so every disc stays clear during
-        the turn (map inflated by the disc radius)."""
-        if self.sweep_radius is None:
-            return True
-        st = self.chain.stay
-        sl = np.minimum(np.minimum(x0[0] - st[:, 0], st[:, 2] - x0[0]), np.minimum(x0[1] - st[:, 1], st[:, 3] - x0[1]))
-        return bool(sl.max() >= self.sweep_radius)
+        """``"disc"``: always; ``"discs"``: where the centres' sweep fits (:meth:`DiscCover.turn_allowed`)."""
+        return self.discs is None or self.discs.turn_allowed(self.chain, x0)
 
     def state_clearance(self, xs: np.ndarray) -> np.ndarray:
-        """(P,) [m] slack of the states (P, 3) over the chain's members: of their constrained
-        points, the worst one's."""
-        pts = self._points(xs)
-        if pts.ndim == 2:
-            return chain_slack(self.chain, pts)
-        return np.min([chain_slack(self.chain, pts[:, d]) for d in range(pts.shape[1])], axis=0)
+        """(P,) [m] slack of the states (P, 3) over the chain's members (``"discs"``: the worst centre's)."""
+        return chain_slack(self.chain, xs[:, :2]) if self.discs is None else self.discs.clearance(self.chain, xs)
 
     def _pose(self, x0, con, u_guess, guess):
         prob = super()._pose(x0, con, u_guess, guess)
@@ -536,21 +409,18 @@ class SAMPC(TrackingMPC):
     def describe(self, xs: np.ndarray, x0: np.ndarray, context) -> tuple[np.ndarray, np.ndarray]:
         """Safe-area ids (N+1,) and box margins (N+1,) [m] of an applied plan."""
         s, boxes = context[:2]
-        if self.points is None:
+        if self.discs is None:
             margins = np.concatenate(([box_slack(x0[None, :2], boxes[:1])[0]], box_slack(xs[1:, :2], boxes[1:])))
-        else:  # the smallest slack of any disc centre in its own stage box
-            pts = self._points(np.vstack((x0[None], xs[1:])))
-            bs = context[3]
-            margins = np.min([box_slack(pts[:, d], bs[d]) for d in range(pts.shape[1])], axis=0)
+        else:
+            margins = self.discs.margins(np.vstack((x0[None], xs[1:])), context[3])
         return self._rect_ids(s, xs[:, :2]), margins
 
     def turn_context(self, x0: np.ndarray, xs: np.ndarray):
         """Stage assignment and boxes of an opening-turn plan."""
-        if self.points is not None:
-            ss, bs, _ = self._disc_stages(np.vstack((x0[None], xs[1:])))
-            c = self._centre_disc
-            return ss[c], bs[c], ss, bs
-        s = assign_stages(self.chain, xs[:, :2], self._first_candidates(self._s_prev), tol=self._check_tol)
+        if self.discs is not None:
+            ss, bs, _ = self.discs.stages(self.chain, np.vstack((x0[None], xs[1:])), self._s_prev_d, self._check_tol)
+            return ss[self.discs.centre], bs[self.discs.centre], ss, bs
+        s = assign_stages(self.chain, xs[:, :2], first_candidates(len(self.chain), self._s_prev), tol=self._check_tol)
         boxes, _ = relax_boxes(stage_boxes(self.chain, s), x0[:2])
         return s, boxes
 
@@ -601,24 +471,13 @@ class SAMPC(TrackingMPC):
         """Reference pulled into reach (:func:`~sanav_mj.control.stages.exit_targets`)."""
         return exit_targets(self.chain, self._ref_chain[self._horizon_idx], xr, ur, s, p0, yaw0)
 
-    def _first_candidates(self, s_prev: np.ndarray | None) -> np.ndarray | None:
-        """Members allowed for stage 0: within two of the previous assignment ``s_prev``'s
-        anchor (None at a cold start)."""
-        if s_prev is None:
-            return None
-        L = len(self.chain)
-        anchor = int(s_prev[1])
-        cand = np.zeros(L, dtype=bool)
-        cand[max(0, anchor - 2) : min(L, anchor + 3)] = True
-        return cand
-
     def _sa_params(self, s: np.ndarray) -> np.ndarray:
         """J_SA slot parameters (6 * slots,) of an assignment (cached per first and last member)."""
         key = (int(s[0]), int(s[-1]))
         theta = self._sa_cache.get(key)
         if theta is None:
             theta = safe_area_params(self.chain, self._rects, key, self.penalty.n_slots, self._q_sa,
-                                     self.config.box_margin, all_or_none=self.points is not None)
+                                     self.config.box_margin, all_or_none=self.discs is not None)
             self._sa_cache[key] = theta
         return theta
 

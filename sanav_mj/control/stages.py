@@ -284,6 +284,17 @@ def assign_feasible(v: np.ndarray, L: int, first_candidates, reanchor_distance: 
     return s
 
 
+def first_candidates(n_members: int, s_prev: np.ndarray | None) -> np.ndarray | None:
+    """(L,) bool members allowed for stage 0: within two of the previous assignment
+    ``s_prev``'s anchor ``s_prev[1]`` (None at a cold start)."""
+    if s_prev is None:
+        return None
+    anchor = int(s_prev[1])
+    cand = np.zeros(n_members, dtype=bool)
+    cand[max(0, anchor - 2) : min(n_members, anchor + 3)] = True
+    return cand
+
+
 def stage_boxes(chain: CorridorChain, s: np.ndarray) -> np.ndarray:
     """Stage boxes (N+1, 4) [m] of an assignment ``s`` (N+1,): ``shrink(C_{s(k-1)} ∩ C_{s(k)})``."""
     out = chain.stay[s].copy()

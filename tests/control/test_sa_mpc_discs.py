@@ -71,7 +71,7 @@ def test_corridor_exactly_as_wide_as_the_discs_holds_and_a_tilt_is_infeasible():
     """Safe area of zero width slack: the free passage is exactly 2 (r_d + margin) + 2 mm."""
     h = 1e-3
     ctl = _corridor_controller(h)
-    assert ctl.disc_radius == pytest.approx(math.hypot(0.25 / 3, 0.215))
+    assert ctl.discs.radius == pytest.approx(math.hypot(0.25 / 3, 0.215))
     guess = np.tile([1.0, 0.0, 0.0], (ctl.N + 1, 1))
     xr, ur = ctl.reference(guess[0])
     con = ctl.constrain(guess[0], xr, ur, guess)
@@ -100,7 +100,7 @@ def test_solved_plan_keeps_every_disc_in_its_box_and_no_opening_turn_where_it_ca
         cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=None))
         assert cmd.status in ("ok", "inexact")
         rows = ctl.position_rows(cmd.predicted)
-        d = ctl.points.shape[0]
+        d = ctl.discs.offsets.shape[0]
         lb = np.repeat(ctl.last.boxes[1:, None, :2], d, axis=1).ravel()
         assert rows.shape == lb.shape
         assert np.all(cmd.margins[1:] >= -1e-3)
@@ -121,10 +121,10 @@ def test_l_corner_discs_take_their_own_areas():
     ctl = SAMPC(ROBOT, areas, plan, DISCS, footprint=FP)
     x = np.array([3.5, 0.95, math.pi / 2])  # rear centre at y = 0.78 (area 0), front at 1.12 (area 1)
     guess = np.tile(x, (ctl.N + 1, 1))
-    ss, bs, exc = ctl._disc_stages(guess)
+    ss, bs, exc = ctl.discs.stages(ctl.chain, guess, None, 1e-9)
     assert exc == 0.0
     assert ss[2, 0] > ss[0, 0]  # the front disc is further along the chain than the rear one
-    c = disc_centres(guess, ctl.points)
+    c = disc_centres(guess, ctl.discs.offsets)
     for d in range(3):
         assert np.all(box_slack(c[:, d], bs[d]) >= 0)
 
@@ -194,7 +194,7 @@ def test_safe_area_slots_all_or_none_when_the_discs_span_more_areas():
 
 
 def test_a_stalled_discs_controller_tries_the_escape_guesses_in_turn():
-    from sanav_mj.control.sa_mpc import STALL_STEPS, escape_guesses
+    from sanav_mj.control.disc_stages import STALL_STEPS, escape_guesses
     from sanav_mj.control.tracking import ActivePlan
 
     ctl = _corridor_controller(0.05)
