@@ -213,7 +213,7 @@ def main(argv: list[str] | None = None) -> int:
                         "and the disc centres in the MPC (MPCConfig.footprint)")
     c.add_argument("--discs", type=int, default=3, help="discs of the cover (--footprint discs)")
     c.add_argument("--seeds", type=int, nargs="+", default=[0])
-    c.add_argument("--narrow-penalty", type=float, default=1.0,
+    c.add_argument("--narrow-penalty", type=float, default=2.0,
                    help="[m] discs mode: corridor weight added per edge through a place too narrow to turn")
     c.add_argument("--resolution", type=float, default=0.05)
     c.add_argument("--mismatch", nargs="*", default=[])

@@ -255,7 +255,7 @@ class MPCConfig(TrackingConfig):
     footprint: str = "disc"
     footprint_discs: int = 3
     footprint_margin: float = 0.05
-    footprint_narrow_penalty: float = 1.0
+    footprint_narrow_penalty: float = 2.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
