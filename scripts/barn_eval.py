@@ -7,11 +7,14 @@
         without the margin, at 0.025 m, both, and at 0.0125 m).
     python scripts/barn_eval.py score runs/bench_dir --worlds runs/barn40_worlds.csv
         BARN score per run of a ``sanav-mj bench`` output folder (results.csv) and the mean.
-    python scripts/barn_eval.py closed-loop runs/barn40/*.xml --worlds runs/barn40_worlds.csv \
-            --margin 0.05 --resolution 0.05 [--mismatch KEY=VALUE ...] --out runs/cl.json
-        SA-MPC seed 0 on each world with the map inflated by circumscribed radius + MARGIN at
-        RESOLUTION; per run also the largest distance of the true position outside every safe
-        area (the tracking excursion the margin has to absorb).
+    python scripts/barn_eval.py closed-loop runs/barn40/*.xml [--worlds runs/barn40_worlds.csv] \
+            --margin 0.05 --resolution 0.05 [--footprint disc|discs] [--discs 3] [--seeds 0 1] \
+            [--mismatch KEY=VALUE ...] --out runs/cl.json
+        SA-MPC on each world and seed with the map inflated by circumscribed radius + MARGIN
+        (--footprint disc) or by the N-disc cover's radius + MARGIN with the disc centres in the
+        MPC (--footprint discs) at RESOLUTION; per run also the largest distance of the true
+        position (disc mode) or of every true disc centre (discs mode) outside every safe area
+        (the tracking excursion the margin has to absorb) and the solve times.
 
 One process; prints a markdown summary, writes CSV.
 """
@@ -129,36 +132,64 @@ def cmd_closed_loop(args) -> int:
     import sanav_mj.eval.episode as episode
     from sanav_mj.sim.mismatch import Mismatch
 
-    # Measurement knob: the run path has no margin argument, so the module default is set
-    # for this process only (prepare() reads it when it builds the map).
-    episode.DEFAULT_MARGIN_M = args.margin
+    from dataclasses import replace
+
+    from sanav_mj.control.footprint import disc_centres
+    from sanav_mj.control.spec import ControllerSpec
+
+    if args.footprint == "discs":
+        spec = ControllerSpec("sa-mpc", replace(ControllerSpec().sa_mpc, footprint="discs",
+                                                 footprint_discs=args.discs, footprint_margin=args.margin,
+                                                 footprint_narrow_penalty=args.narrow_penalty))
+    else:
+        # Measurement knob: the run path has no margin argument for the circumscribed disc,
+        # so the module default is set for this process only (prepare() reads it).
+        episode.DEFAULT_MARGIN_M = args.margin
+        spec = ControllerSpec("sa-mpc")
     mm = {}
     for item in args.mismatch:
         key, value = item.split("=", 1)
         mm[key] = int(value) if key == "delay" else float(value)
     mismatch = Mismatch(**mm)
-    t_opt = {r["scenario"]: float(r["t_opt_s"]) for r in csv.DictReader(open(args.worlds))}
+    t_opt = {r["scenario"]: float(r["t_opt_s"]) for r in csv.DictReader(open(args.worlds))} if args.worlds else {}
     rows = []
-    for path in args.scenarios:
-        d = episode.run_scenario(path, seed=0, resolution=args.resolution, mismatch=mismatch).document
+    for path, seed in ((p, s) for p in args.scenarios for s in args.seeds):
+        out = episode.run_scenario(path, seed=seed, resolution=args.resolution, mismatch=mismatch,
+                                   controller_spec=spec)
+        d = out.document
         exc = 0.0
         if d["trace"]["x"]:
-            rects = np.asarray(episode.prepare(path, resolution=args.resolution).areas.rects)
-            exc = _excursion(np.column_stack([d["trace"]["x"], d["trace"]["y"]]), rects)
-        rows.append({"scenario": d["scenario"], "success": d["success"], "reason": d["reason"],
+            rects = np.asarray(out.prepared.areas.rects)
+            xy = np.column_stack([d["trace"]["x"], d["trace"]["y"]])
+            if args.footprint == "discs":  # every disc centre of the cover, true pose
+                offsets = robot_footprint(out.prepared.scenario.model).discs(args.discs)[0]
+                c = disc_centres(np.column_stack([xy, d["trace"]["yaw"]]), offsets)
+                xy = c.reshape(-1, 2)
+            exc = _excursion(xy, rects)
+        to = t_opt.get(d["scenario"], math.nan)
+        rows.append({"scenario": d["scenario"], "seed": seed, "success": d["success"], "reason": d["reason"],
                      "sim_time_s": d["sim_time_s"], "collisions": d["collisions"],
                      "min_clearance_m": d["min_clearance_m"], "excursion_m": exc,
-                     "barn_score": barn_score(d["success"], d["sim_time_s"], t_opt[d["scenario"]])})
-        print(f"{d['scenario']}: {d['reason']} {d['sim_time_s']:.1f} s, excursion {exc:.4f} m", flush=True)
+                     "solve_mean_ms": d["solve_ms"]["mean"], "solve_p99_ms": d["solve_ms"]["p99"],
+                     "steps": d["steps"],
+                     "barn_score": barn_score(d["success"], d["sim_time_s"], to) if math.isfinite(to) else math.nan})
+        print(f"{d['scenario']}/{seed}: {d['reason']} {d['sim_time_s']:.1f} s, excursion {exc:.4f} m, "
+              f"solve mean {d['solve_ms']['mean']:.2f} p99 {d['solve_ms']['p99']:.2f} ms", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(rows, indent=1))
     ok = [r for r in rows if r["success"]]
     clr = [r["min_clearance_m"] for r in rows if r["min_clearance_m"] is not None]
-    print(f"margin {args.margin} m, cells {args.resolution} m, mismatch {mm}: success {len(ok)}/{len(rows)}, "
+    print(f"footprint {args.footprint}, margin {args.margin} m, cells {args.resolution} m, mismatch {mm}: success {len(ok)}/{len(rows)}, "
           f"runs with collision {sum(r['collisions'] > 0 for r in rows)}, {dict(Counter(r['reason'] for r in rows))}, "
           f"mean time (successful) {np.mean([r['sim_time_s'] for r in ok]) if ok else float('nan'):.2f} s, "
           f"mean BARN score {np.mean([r['barn_score'] for r in rows]):.3f}, "
           f"min clearance {min(clr) if clr else float('nan'):.3f} m, max excursion {max(r['excursion_m'] for r in rows):.4f} m")
+    ran = [r for r in rows if r["steps"] > 0]
+    if ran:
+        w = np.array([r["steps"] for r in ran], float)
+        print(f"solve ms: pooled mean {np.average([r['solve_mean_ms'] for r in ran], weights=w):.2f}, "
+              f"per-run p99 median {np.median([r['solve_p99_ms'] for r in ran]):.2f}, "
+              f"max p99 {max(r['solve_p99_ms'] for r in ran):.2f}")
     return 0
 
 
@@ -175,8 +206,15 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("--worlds", type=Path, required=True)
     c = sub.add_parser("closed-loop")
     c.add_argument("scenarios", nargs="+", type=Path)
-    c.add_argument("--worlds", type=Path, required=True)
+    c.add_argument("--worlds", type=Path, default=None, help="worlds CSV (t_opt for the BARN score; optional)")
     c.add_argument("--margin", type=float, default=MARGIN)
+    c.add_argument("--footprint", choices=("disc", "discs"), default="disc",
+                   help="disc: circumscribed radius + MARGIN; discs: the N-disc cover's radius + MARGIN "
+                        "and the disc centres in the MPC (MPCConfig.footprint)")
+    c.add_argument("--discs", type=int, default=3, help="discs of the cover (--footprint discs)")
+    c.add_argument("--seeds", type=int, nargs="+", default=[0])
+    c.add_argument("--narrow-penalty", type=float, default=2.0,
+                   help="[m] discs mode: corridor weight added per edge through a place too narrow to turn")
     c.add_argument("--resolution", type=float, default=0.05)
     c.add_argument("--mismatch", nargs="*", default=[])
     c.add_argument("--out", type=Path, required=True)

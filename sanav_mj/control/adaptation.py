@@ -14,10 +14,64 @@ asks it, every step, for
   compensation, clipping, recorded in the monitor).
 
 Robot-derived values (the half track that makes yaw-rate residuals commensurable with
-speeds) come from the robot's parameters. The rationale and measurements of each mechanism
-are in :class:`~sanav_mj.control.sa_mpc.SAMPC` ("Measured position outside its box",
-"Derating by tracking residual", "Traction limit", "Pose filter", "Latency compensation").
+speeds) come from the robot's parameters. The excursion derating is described in
+:class:`~sanav_mj.control.sa_mpc.SAMPC` ("Measured position outside its box"); the other
+mechanisms, with their rationale and measurements, below (as seen from SA-MPC).
 :data:`NO_ADAPTATION` switches every mechanism off (the penalty MPC's plant view).
+
+**Derating by tracking residual.** Slip (low friction), a saturated actuator (small
+torque limit) or a delay beyond what the monitor identifies make the measured body
+velocity differ from the identified response to the sent commands. The monitor's RMS
+residual over its forgetting window lowers the speed bound like an excursion does
+(``AdaptationConfig.residual_stop``): a plant that does not do what it is told is driven
+slowly, down to ``residual_floor v_max``, so that its braking distance and the error
+it accumulates per period shrink with the speed.
+
+The same fraction lowers the yaw-rate bound (not below ``residual_yaw_floor w_max``):
+at low friction with an over-turning plant the loop weaves at up to +-2 rad/s while
+driving at 0.8 m/s, asking for more lateral acceleration than the floor gives; derating
+both inputs cuts the asked-for ``v w`` with the square of the fraction.
+
+**Traction limit.** The residual measures the tracking error, not the braking
+capability: on a floor with 0.36-0.49 m/s^2 of grip (friction 0.05) the identified
+speed gain drops to its clamp, absorbs the slow ramp, and the residual stays near
+0.04 m/s while the commanded speed runs 0.5 m/s ahead of the measured one; the robot
+reached 0.93 m/s with the model braking at 1.5 m/s^2 and slid out of its corridor at a
+corner. The monitor flags slip when the measured speed stays more than
+``monitor.slip_gap`` from the commands of *every* candidate delay (a delayed plant with
+grip reaches the command of its delay, so it is not mistaken for a slipping one), and
+keeps the largest speed change per period the body achieved (a lower bound of the grip;
+periods of fast turning excluded). While slip is seen, the rate bound of the speed
+becomes ``traction_probe`` times that grip (not below ``traction_floor a_max``); every
+bound derived from ``a_max`` follows, per solve: the rate constraints, the speed bounds
+implied by the terminal stop (so each plan can stop inside its stage boxes at the
+grip the plant showed) and the braking fallback. Without slip the bound recovers by
+``traction_recovery`` per step. In the envelope and the nominal runs the flag is never
+raised, so nothing changes there (every run bit-identical); a plant whose gain error
+exceeds about 15 % at speed is flagged like a slipping one (docs/robustness.md).
+
+**Pose filter.** Before anything else the measured pose is fused with the measured body
+velocity by a :class:`~sanav_mj.control.monitor.PoseFilter` (an EKF whose measurement
+noise is identified online from the lag-one covariance of the measurement increments
+against the odometry, so slip is not taken for noise). A noise-free pose (nominal, and
+on a slipping floor) is returned exactly, so the nominal controller is unchanged; under
+white noise of 5-20 cm the estimate's error is a third to a seventh of the
+measurement's (synthetic check). A real jump (relocalisation) is followed after the
+filter's consistency restart.
+
+**Latency compensation.** A plant that applies each command ``d`` control steps late
+(actuator and communication latency) makes an MPC that plans from the measured state
+weave: its first input takes effect ``d dt`` later than it assumes. The controller knows
+the commands it sent; the :class:`~sanav_mj.control.monitor.ActuationMonitor` identifies
+``d`` (0..``monitor.max_delay``) and the gains ``(g_v, g_w)`` online from the measured body
+velocity (least squares with forgetting, per candidate delay; smallest residual wins,
+with hysteresis). Each step rolls the measured pose forward through the ``d`` commands
+already sent and not yet applied (scaled by the gains) and poses the problem from that
+predicted state, with the last sent input as ``u_prev``. The stage-0 position of every
+argument below is then that prediction; the positions between the measurement and it
+were planned by the earlier solves that sent those commands. Assumed: the delay is an
+integer number of periods and constant over the forgetting horizon (about 2 s); a wrong
+estimate shows up as tracking error like any other mismatch.
 """
 
 from __future__ import annotations

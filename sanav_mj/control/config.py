@@ -208,6 +208,10 @@ class InputLimits:
         return np.array([self.a_max, self.alpha_max])
 
 
+#: values of :attr:`MPCConfig.footprint`.
+FOOTPRINT_MODES = ("disc", "discs")
+
+
 @dataclass(frozen=True)
 class MPCConfig(TrackingConfig):
     """Settings of the SA-MPC: the core's (:class:`TrackingConfig`) plus the following.
@@ -225,12 +229,33 @@ class MPCConfig(TrackingConfig):
         adaptation: the adaptation to the plant (actuation monitor, pose filter, latency and
             gain compensation, speed / yaw-rate derating, traction limit), see
             :class:`~sanav_mj.control.adaptation.AdaptationConfig`.
+        footprint: how the robot's body enters the map and the constraints. ``"disc"``
+            (default, the paper's): the map is inflated by the circumscribed radius plus
+            ``sanav_mj.eval.episode.DEFAULT_MARGIN_M`` and the predicted position (base
+            origin) must lie in the stage box. ``"discs"``: the footprint rectangle of the
+            collision geoms (:func:`sanav_mj.footprint.robot_footprint`) is covered by
+            ``footprint_discs`` discs of radius r_d along its long axis; the map is inflated
+            by ``r_d + footprint_margin`` and the two extreme disc centres of every
+            predicted state must lie in the stage box (so every centre does: they are
+            collinear); J_SA is charged at every disc centre; the opening turn on the spot is
+            taken only where the circle the disc centres sweep fits in a stage box (else the
+            MPC turns, under the disc rows). See :mod:`sanav_mj.control.footprint`.
+        footprint_discs: number of discs of the ``"discs"`` cover (>= 2).
+        footprint_margin: [m] inflation margin beyond the disc radius in ``"discs"`` mode.
+        footprint_narrow_penalty: [m] ``"discs"`` mode: added to the corridor search's weight
+            of every edge through a place where the circumscribed-disc map has no room
+            (:func:`sanav_mj.eval.episode.planning_areas`), so the corridor keeps to passages
+            where the robot can turn when they are not much longer; 0: shortest corridor.
     """
 
     q_sa: tuple[float, ...] = (5.0, 5.0)
     box_margin: float = 0.02
     reference_window: int | None = None
     adaptation: AdaptationConfig = AdaptationConfig()
+    footprint: str = "disc"
+    footprint_discs: int = 3
+    footprint_margin: float = 0.05
+    footprint_narrow_penalty: float = 2.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -245,6 +270,16 @@ class MPCConfig(TrackingConfig):
             raise ValueError(f"MPCConfig.reference_window must be an integer >= 1 or None, got {self.reference_window!r}")
         if not isinstance(self.adaptation, AdaptationConfig):
             raise ValueError(f"MPCConfig.adaptation must be an AdaptationConfig, got {self.adaptation!r}")
+        if self.footprint not in FOOTPRINT_MODES:
+            raise ValueError(f"MPCConfig.footprint must be one of {FOOTPRINT_MODES}, got {self.footprint!r}")
+        if isinstance(self.footprint_discs, bool) or not (isinstance(self.footprint_discs, int) and 2 <= self.footprint_discs <= 8):
+            raise ValueError(f"MPCConfig.footprint_discs must be an integer in [2, 8], got {self.footprint_discs!r}")
+        fm = self.footprint_margin
+        if not (isinstance(fm, (int, float)) and math.isfinite(fm) and 0 <= fm < 1):
+            raise ValueError(f"MPCConfig.footprint_margin must be in [0, 1) m, got {fm!r}")
+        fp = self.footprint_narrow_penalty
+        if not (isinstance(fp, (int, float)) and math.isfinite(fp) and fp >= 0):
+            raise ValueError(f"MPCConfig.footprint_narrow_penalty must be a finite number >= 0 m, got {fp!r}")
 
     def tracking(self) -> TrackingConfig:
         """The core's part of this configuration (the same values)."""

@@ -39,7 +39,12 @@ def make_controller(
     if spec.name == "sa-mpc":
         from sanav_mj.control.sa_mpc import SAMPC
 
-        return SAMPC(scenario.robot, areas, plan, spec.sa_mpc)
+        fp = None
+        if spec.sa_mpc.footprint == "discs":
+            from sanav_mj.footprint import robot_footprint
+
+            fp = robot_footprint(scenario.model)
+        return SAMPC(scenario.robot, areas, plan, spec.sa_mpc, footprint=fp)
     if spec.name == "mpc":
         from sanav_mj.control.penalty_mpc import PenaltyMPC
 

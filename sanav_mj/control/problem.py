@@ -35,7 +35,7 @@ registry :mod:`sanav_mj.control.backends`; C code generation and its on-disk cac
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import casadi as cs
@@ -132,6 +132,8 @@ class TrackingOCP:
         layout: parameter layout.
         position_constraints: whether ``g`` starts with the predicted positions.
         key: string that identifies the structure (used for caching compiled code).
+        points: (D, 2) [m] body-frame points whose world positions form the position rows
+            (default one point, the base origin: the rows are the predicted positions).
     """
 
     horizon: int
@@ -143,6 +145,12 @@ class TrackingOCP:
     layout: ParamLayout
     position_constraints: bool
     key: str
+    points: np.ndarray = field(default_factory=lambda: np.zeros((1, 2)))
+
+    @property
+    def n_points(self) -> int:
+        """D, number of body points per stage in the position rows."""
+        return int(self.points.shape[0])
 
     @property
     def n_z(self) -> int:
@@ -154,8 +162,8 @@ class TrackingOCP:
 
     @property
     def n_pos(self) -> int:
-        """Number of position-constraint rows at the start of ``g`` (2N or 0)."""
-        return 2 * self.horizon if self.position_constraints else 0
+        """Number of position-constraint rows at the start of ``g`` (2DN or 0)."""
+        return 2 * self.n_points * self.horizon if self.position_constraints else 0
 
     def functions(self) -> tuple[cs.Function, cs.Function]:
         """``f(z, p)`` and ``g(z, p)`` as CasADi functions (names ``f`` and ``g``)."""
@@ -169,6 +177,8 @@ def build_tracking_ocp(
     dt: float,
     position_cost: PositionCost | None = None,
     position_constraints: bool = True,
+    points=None,
+    cost_points=None,
 ) -> TrackingOCP:
     """Build the tracking NLP described in the module docstring.
 
@@ -177,6 +187,12 @@ def build_tracking_ocp(
         dt: [s] > 0, step length (baked into the model).
         position_cost: optional extra cost on each predicted position p_1..p_N.
         position_constraints: include the predicted positions in ``g`` (for stage boxes).
+        points: (D, 2) [m] body-frame points (footprint disc centres, see
+            :mod:`sanav_mj.control.footprint`) whose world positions at stages 1..N form the
+            position rows, stage-major ``(c_1^1, .., c_1^D, c_2^1, ...)`` (2DN,); None: the
+            base origin only (the predicted positions, the paper's rows).
+        cost_points: (E, 2) [m] body-frame points each charged ``position_cost`` at stages
+            1..N; None: ``points`` (or the base origin).
 
     Returns:
         The symbolic problem.
@@ -186,6 +202,12 @@ def build_tracking_ocp(
     if not (dt > 0 and math.isfinite(dt)):
         raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
     n = int(horizon)
+    default = points is None
+    pts = np.zeros((1, 2)) if points is None else np.asarray(points, dtype=float)
+    cpts = pts if cost_points is None else np.asarray(cost_points, dtype=float)
+    for name, a in (("points", pts), ("cost_points", cpts)):
+        if a.ndim != 2 or a.shape[1] != 2 or a.shape[0] < 1 or not np.all(np.isfinite(a)):
+            raise ValueError(f"{name}: expected a (D, 2) array of finite body offsets [m], got shape {a.shape}")
     n_extra = position_cost.n_params if position_cost is not None else 0
     layout = ParamLayout(n, n_extra)
     z = cs.SX.sym("z", 2 * n)
@@ -212,17 +234,30 @@ def build_tracking_ocp(
         cost += wsq(us[k] - u_last, q_a)
         u_last = us[k]
     cost += wsq(xs[n] - x_ref[:, n], q_n)
+    from sanav_mj.control.footprint import disc_centres_cs
+
+    def centres(x, offsets):
+        if not np.any(offsets) and offsets.shape[0] == 1:
+            return [x[:2]]
+        return disc_centres_cs(x, offsets)
+
     if position_cost is not None:
         for k in range(1, n + 1):
-            cost += position_cost.expr(xs[k][:2], extra)
+            for c in centres(xs[k], cpts):
+                cost += position_cost.expr(c, extra)
 
     rows = []
     if position_constraints:
-        rows += [xs[k][:2] for k in range(1, n + 1)]
+        for k in range(1, n + 1):
+            rows += centres(xs[k], pts)
     rows += [us[k] - us[k - 1] for k in range(1, n)]
     g = cs.vertcat(*rows) if rows else cs.SX(0, 1)
     key = f"track-N{n}-dt{dt!r}-pc{int(position_constraints)}-{position_cost.key if position_cost else 'none'}"
-    return TrackingOCP(n, float(dt), z, p, cost, g, layout, position_constraints, key)
+    if not default or cost_points is not None:
+        # footprint points change the structure: name them exactly (repr of the floats)
+        key += "-pts" + "_".join(f"{v!r}" for v in pts.ravel().tolist())
+        key += "-cpts" + "_".join(f"{v!r}" for v in cpts.ravel().tolist())
+    return TrackingOCP(n, float(dt), z, p, cost, g, layout, position_constraints, key, pts)
 
 
 def shift_inputs(u: np.ndarray, start: int, horizon: int, rate_step: np.ndarray, u_last: np.ndarray) -> np.ndarray:
@@ -261,7 +296,7 @@ def shift_multipliers(ocp: TrackingOCP, y: np.ndarray, shift_rates: bool = True)
     n = ocp.horizon
     parts = []
     if ocp.position_constraints:
-        pos = y[: 2 * n].reshape(n, 2)
+        pos = y[: ocp.n_pos].reshape(n, 2 * ocp.n_points)
         parts.append(np.concatenate((pos[1:], pos[-1:])).ravel())
     rate = y[ocp.n_pos :].reshape(n - 1, 2)
     if shift_rates:

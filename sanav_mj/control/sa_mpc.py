@@ -20,6 +20,7 @@ import numpy as np
 
 from sanav_mj.control.adaptation import PlantAdaptation
 from sanav_mj.control.config import MPCConfig
+from sanav_mj.control.disc_stages import DiscCover, StallEscape
 from sanav_mj.control.problem import build_tracking_ocp
 from sanav_mj.control.stages import (
     CorridorChain,
@@ -28,6 +29,7 @@ from sanav_mj.control.stages import (
     box_slack,
     chain_slack,
     exit_targets,
+    first_candidates,
     relax_boxes,
     safe_area_params,
     stage_boxes,
@@ -105,8 +107,11 @@ class SAMPC(TrackingMPC):
     (monitor, pose filter, latency compensation, derating, traction limit) is
     :class:`~sanav_mj.control.adaptation.PlantAdaptation`. This class adds the safe-area
     constraints and cost (:meth:`constrain`: stage assignment, stage boxes, J_SA slots, exit
-    targets); footprint-true constraints would extend :meth:`constrain` and the OCP's
-    position rows (see :mod:`sanav_mj.control.tracking`).
+    targets). With ``MPCConfig.footprint="discs"`` the OCP's position rows are the centres of
+    the footprint's disc cover (:mod:`sanav_mj.control.footprint`) instead of the position,
+    each centre with its own stage assignment and boxes in a map inflated by the disc radius
+    (see :meth:`constrain`, :meth:`turn_allowed`); docs/results.md ("Tight spaces") gives
+    what it measured.
 
     Each step: update the actuation monitor with the measured velocity, filter the measured
     pose with the measured velocity, predict the state
@@ -179,59 +184,9 @@ class SAMPC(TrackingMPC):
     out, the slower, which shortens the stopping distance and the distance driven on a
     wrong model before the next measurement.
 
-    **Derating by tracking residual.** Slip (low friction), a saturated actuator (small
-    torque limit) or a delay beyond what the monitor identifies make the measured body
-    velocity differ from the identified response to the sent commands. The monitor's RMS
-    residual over its forgetting window lowers the speed bound like an excursion does
-    (``AdaptationConfig.residual_stop``): a plant that does not do what it is told is driven
-    slowly, down to ``residual_floor v_max``, so that its braking distance and the error
-    it accumulates per period shrink with the speed.
-
-    The same fraction lowers the yaw-rate bound (not below ``residual_yaw_floor w_max``):
-    at low friction with an over-turning plant the loop weaves at up to +-2 rad/s while
-    driving at 0.8 m/s, asking for more lateral acceleration than the floor gives; derating
-    both inputs cuts the asked-for ``v w`` with the square of the fraction.
-
-    **Traction limit.** The residual measures the tracking error, not the braking
-    capability: on a floor with 0.36-0.49 m/s^2 of grip (friction 0.05) the identified
-    speed gain drops to its clamp, absorbs the slow ramp, and the residual stays near
-    0.04 m/s while the commanded speed runs 0.5 m/s ahead of the measured one; the robot
-    reached 0.93 m/s with the model braking at 1.5 m/s^2 and slid out of its corridor at a
-    corner. The monitor flags slip when the measured speed stays more than
-    ``monitor.slip_gap`` from the commands of *every* candidate delay (a delayed plant with
-    grip reaches the command of its delay, so it is not mistaken for a slipping one), and
-    keeps the largest speed change per period the body achieved (a lower bound of the grip;
-    periods of fast turning excluded). While slip is seen, the rate bound of the speed
-    becomes ``traction_probe`` times that grip (not below ``traction_floor a_max``); every
-    bound derived from ``a_max`` follows, per solve: the rate constraints, the speed bounds
-    implied by the terminal stop (so each plan can stop inside its stage boxes at the
-    grip the plant showed) and the braking fallback. Without slip the bound recovers by
-    ``traction_recovery`` per step. In the envelope and the nominal runs the flag is never
-    raised, so nothing changes there (every run bit-identical); a plant whose gain error
-    exceeds about 15 % at speed is flagged like a slipping one (docs/robustness.md).
-
-    **Pose filter.** Before anything else the measured pose is fused with the measured body
-    velocity by a :class:`~sanav_mj.control.monitor.PoseFilter` (an EKF whose measurement
-    noise is identified online from the lag-one covariance of the measurement increments
-    against the odometry, so slip is not taken for noise). A noise-free pose (nominal, and
-    on a slipping floor) is returned exactly, so the nominal controller is unchanged; under
-    white noise of 5-20 cm the estimate's error is a third to a seventh of the
-    measurement's (synthetic check). A real jump (relocalisation) is followed after the
-    filter's consistency restart.
-
-    **Latency compensation.** A plant that applies each command ``d`` control steps late
-    (actuator and communication latency) makes an MPC that plans from the measured state
-    weave: its first input takes effect ``d dt`` later than it assumes. The controller knows
-    the commands it sent; the :class:`~sanav_mj.control.monitor.ActuationMonitor` identifies
-    ``d`` (0..``monitor.max_delay``) and the gains ``(g_v, g_w)`` online from the measured body
-    velocity (least squares with forgetting, per candidate delay; smallest residual wins,
-    with hysteresis). Each step rolls the measured pose forward through the ``d`` commands
-    already sent and not yet applied (scaled by the gains) and poses the problem from that
-    predicted state, with the last sent input as ``u_prev``. The stage-0 position of every
-    argument below is then that prediction; the positions between the measurement and it
-    were planned by the earlier solves that sent those commands. Assumed: the delay is an
-    integer number of periods and constant over the forgetting horizon (about 2 s); a wrong
-    estimate shows up as tracking error like any other mismatch.
+    **Derating by tracking residual, traction limit, pose filter, latency compensation**: the
+    plant adaptation's mechanisms, described with their measurements in
+    :mod:`sanav_mj.control.adaptation`.
 
     **Recursive feasibility** (nominal model, no disturbance, converged solves, the default
     ``terminal_stop``): let ``u*`` be the previous plan with positions ``p*_0..p*_N`` and
@@ -326,6 +281,7 @@ class SAMPC(TrackingMPC):
         plan: Plan,
         config: MPCConfig = MPCConfig(),
         *,
+        footprint=None,
         failure_injector: Callable[[int], bool] | None = None,
     ):
         """Build the controller (and its solver, once per process).
@@ -335,12 +291,15 @@ class SAMPC(TrackingMPC):
             areas: the safe areas.
             plan: a successful plan (corridor and reference).
             config: settings.
+            footprint: the robot's footprint rectangle
+                (:class:`sanav_mj.footprint.Footprint`), required when ``config.footprint``
+                is ``"discs"`` (its disc cover gives the constrained points), else unused.
             failure_injector: test hook called with the step index; returning True makes
                 that step's solve count as failed.
 
         Raises:
-            ValueError: the plan failed or has no reference, or the corridor is not a chain
-                of adjacent safe areas.
+            ValueError: the plan failed or has no reference, the corridor is not a chain
+                of adjacent safe areas, or ``"discs"`` without a footprint.
         """
         t0 = time.perf_counter()
         if not plan.ok or plan.reference is None:
@@ -353,7 +312,14 @@ class SAMPC(TrackingMPC):
                                      limits.lower(), limits.upper(), config.adaptation)
         self._set_plan(areas, plan, config.box_margin, dt)
         self.penalty = SafeAreaPenalty(len(config.q_sa))
-        ocp = build_tracking_ocp(config.horizon, dt, self.penalty, position_constraints=True)
+        self.discs: DiscCover | None = None
+        if config.footprint == "discs":
+            if footprint is None:
+                raise ValueError("footprint: MPCConfig.footprint='discs' needs the robot's Footprint, got None")
+            self.discs = DiscCover.of(footprint, config.footprint_discs)
+            self._escape = StallEscape(config.horizon)
+        pts = None if self.discs is None else self.discs.offsets
+        ocp = build_tracking_ocp(config.horizon, dt, self.penalty, position_constraints=True, points=pts)
         super().__init__(robot, config, limits, ocp, adaptation, failure_injector=failure_injector)
         self.position_slack = config.box_margin
         self._q_sa = np.asarray(config.q_sa, float)
@@ -373,7 +339,7 @@ class SAMPC(TrackingMPC):
         if not plan.ok or plan.reference is None or len(plan.reference) < 1:
             raise ValueError(f"plan must be successful with a reference, got ok={plan.ok} reason={plan.reason!r}")
         self._set_plan(areas, plan, self.config.box_margin, self.dt)
-        self._s_prev, self._ref_index = None, 0
+        self._s_prev, self._s_prev_d, self._ref_index = None, None, 0
 
     @property
     def monitor(self):
@@ -390,6 +356,9 @@ class SAMPC(TrackingMPC):
         pose = np.asarray(pose, dtype=float).reshape(3)
         super().reset(pose, u_prev=u_prev, opening_turn=opening_turn)
         self._s_prev: np.ndarray | None = None
+        self._s_prev_d: np.ndarray | None = None
+        if self.discs is not None:
+            self._escape.reset()
         self.last: StepInfo | None = None
         if progress is not None and not 0 <= progress < len(self.ref_states):
             raise ValueError(f"progress must be a reference index in [0, {len(self.ref_states)}), got {progress!r}")
@@ -406,19 +375,50 @@ class SAMPC(TrackingMPC):
 
     def constrain(self, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray, guess: np.ndarray) -> Constraints:
         """Stage assignment of the guess, stage boxes (relaxed around the measured position),
-        J_SA slots and exit targets of this step (see the class docstring)."""
-        s = assign_stages(self.chain, guess[:, :2], self._first_candidates(), tol=self._check_tol)
-        boxes = stage_boxes(self.chain, s)
-        boxes_c, excursion = relax_boxes(boxes, x0[:2])
-        # reference pulled into reach (exit targets, see the class docstring)
-        xr, ur = exit_targets(self.chain, self._ref_chain[self._horizon_idx], x_ref, u_ref, s, x0[:2], float(x0[2]))
-        con = Constraints(boxes_c[1:, :2].ravel(), boxes_c[1:, 2:].ravel(), self._sa_params(s), xr, ur,
-                          excursion, (s, boxes_c))
-        return con
+        J_SA slots and exit targets of this step (see the class docstring); in ``"discs"``
+        mode per disc centre (:meth:`DiscCover.stages`)."""
+        if self.discs is None:
+            s = assign_stages(self.chain, guess[:, :2], first_candidates(len(self.chain), self._s_prev),
+                              tol=self._check_tol)
+            boxes_c, excursion = relax_boxes(stage_boxes(self.chain, s), x0[:2])
+            xr, ur = exit_targets(self.chain, self._ref_chain[self._horizon_idx], x_ref, u_ref, s, x0[:2],
+                                  float(x0[2]))
+            return Constraints(boxes_c[1:, :2].ravel(), boxes_c[1:, 2:].ravel(), self._sa_params(s), xr, ur,
+                               excursion, (s, boxes_c))
+        ss, bs, excursion = self.discs.stages(self.chain, guess, self._s_prev_d, self._check_tol)
+        c = self.discs.centre
+        xr, ur = exit_targets(self.chain, self._ref_chain[self._horizon_idx], x_ref, u_ref, ss[c], x0[:2],
+                              float(x0[2]))
+        key = np.array([ss[:, 0].min(), ss[:, -1].max()])
+        return Constraints(*DiscCover.bounds(bs), self._sa_params(key), xr, ur, excursion, (ss[c], bs[c], ss, bs))
+
+    def _guess_inputs(self) -> np.ndarray:
+        """The warm start; in ``"discs"`` mode an escape guess once stalled (:class:`StallEscape`)."""
+        u = super()._guess_inputs()
+        if self.discs is None or self._active is None:
+            return u
+        g = self._escape.next_guess(self._u_prev, self._ref_index >= len(self.ref_states) - 5)
+        if g is None:
+            return u
+        self._active.y = self._active.y_z = None  # no multipliers of the abandoned plan
+        self.stats.count("escape")
+        return g
+
+    def position_rows(self, xs: np.ndarray) -> np.ndarray:
+        """The position rows of ``g`` for the rollout ``xs`` (N+1, 3): positions or disc centres of stages 1..N."""
+        return (xs[1:, :2] if self.discs is None else self.discs.centres(xs[1:])).ravel()
+
+    def turn_allowed(self, x0: np.ndarray) -> bool:
+        """``"disc"``: always; ``"discs"``: where the centres' sweep fits (:meth:`DiscCover.turn_allowed`)."""
+        return self.discs is None or self.discs.turn_allowed(self.chain, x0)
+
+    def state_clearance(self, xs: np.ndarray) -> np.ndarray:
+        """(P,) [m] slack of the states (P, 3) over the chain's members (``"discs"``: the worst centre's)."""
+        return chain_slack(self.chain, xs[:, :2]) if self.discs is None else self.discs.clearance(self.chain, xs)
 
     def _pose(self, x0, con, u_guess, guess):
         prob = super()._pose(x0, con, u_guess, guess)
-        s, boxes_c = con.context
+        s, boxes_c = con.context[:2]
         n = self.N
         self.last = StepInfo(s, boxes_c, u_guess, guess, con.x_ref, con.u_ref, self._u_prev.copy(),
                              prob.z_lb.reshape(n, 2), prob.z_ub.reshape(n, 2), self._rate_step)
@@ -426,19 +426,27 @@ class SAMPC(TrackingMPC):
 
     def describe(self, xs: np.ndarray, x0: np.ndarray, context) -> tuple[np.ndarray, np.ndarray]:
         """Safe-area ids (N+1,) and box margins (N+1,) [m] of an applied plan."""
-        s, boxes = context
-        margins = np.concatenate(([box_slack(x0[None, :2], boxes[:1])[0]], box_slack(xs[1:, :2], boxes[1:])))
+        s, boxes = context[:2]
+        if self.discs is None:
+            margins = np.concatenate(([box_slack(x0[None, :2], boxes[:1])[0]], box_slack(xs[1:, :2], boxes[1:])))
+        else:
+            margins = self.discs.margins(np.vstack((x0[None], xs[1:])), context[3])
         return stage_rect_ids(self.chain, self._rects, s, xs[:, :2]), margins
 
     def turn_context(self, x0: np.ndarray, xs: np.ndarray):
         """Stage assignment and boxes of an opening-turn plan."""
-        s = assign_stages(self.chain, xs[:, :2], self._first_candidates(), tol=self._check_tol)
+        if self.discs is not None:
+            ss, bs, _ = self.discs.stages(self.chain, np.vstack((x0[None], xs[1:])), self._s_prev_d, self._check_tol)
+            return ss[self.discs.centre], bs[self.discs.centre], ss, bs
+        s = assign_stages(self.chain, xs[:, :2], first_candidates(len(self.chain), self._s_prev), tol=self._check_tol)
         boxes, _ = relax_boxes(stage_boxes(self.chain, s), x0[:2])
         return s, boxes
 
     def commit(self, context) -> None:
         """Keep the stage assignment of the applied plan (anchors the next assignment)."""
         self._s_prev = context[0]
+        if len(context) > 2:
+            self._s_prev_d = context[2]
 
     def clearance(self, points: np.ndarray) -> np.ndarray:
         """(P,) [m] largest slack of each point (P, 2) over the corridor chain's members (negative: outside all)."""
@@ -475,15 +483,6 @@ class SAMPC(TrackingMPC):
         self._horizon_idx = idx
         return xr, ur
 
-    def _first_candidates(self) -> np.ndarray | None:
-        """Members allowed for stage 0: within two of the previous anchor (None at a cold start)."""
-        if self._s_prev is None:
-            return None
-        L = len(self.chain)
-        anchor = int(self._s_prev[1])
-        cand = np.zeros(L, dtype=bool)
-        cand[max(0, anchor - 2) : min(L, anchor + 3)] = True
-        return cand
 
     def _sa_params(self, s: np.ndarray) -> np.ndarray:
         """J_SA slot parameters (6 * slots,) of an assignment (cached per first and last member)."""
@@ -491,6 +490,6 @@ class SAMPC(TrackingMPC):
         theta = self._sa_cache.get(key)
         if theta is None:
             theta = safe_area_params(self.chain, self._rects, key, self.penalty.n_slots, self._q_sa,
-                                     self.config.box_margin)
+                                     self.config.box_margin, all_or_none=self.discs is not None)
             self._sa_cache[key] = theta
         return theta

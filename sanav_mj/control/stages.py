@@ -175,7 +175,9 @@ def assign_stages(
 
     Args:
         chain: the corridor chain.
-        guess: (N+1, 2) [m] guessed positions, ``guess[0]`` the measured one.
+        guess: (N+1, 2) [m] guessed positions, ``guess[0]`` the measured one; or
+            (N+1, D, 2) [m] D points per stage (footprint disc centres), a stage's distance
+            being the largest of its points'.
         first_candidates: (L,) bool, members allowed for ``s(0)`` (None: all). Ignored when
             ``guess[0]`` is farther than ``reanchor_distance`` [m] from all of them.
         tol: [m] distances below this count as zero.
@@ -186,7 +188,11 @@ def assign_stages(
     """
     n1 = guess.shape[0]
     L = len(chain)
-    d2 = _outside_sq(guess, np.concatenate((chain.stay, chain.advance)))
+    both = np.concatenate((chain.stay, chain.advance))
+    if guess.ndim == 3:  # several points per stage (footprint disc centres): the worst one counts
+        d2 = np.max([_outside_sq(guess[:, d], both) for d in range(guess.shape[1])], axis=0)
+    else:
+        d2 = _outside_sq(guess, both)
     d2[d2 < tol * tol] = 0.0
     if L <= 62:
         s = assign_feasible(d2, L, first_candidates, reanchor_distance)
@@ -278,6 +284,17 @@ def assign_feasible(v: np.ndarray, L: int, first_candidates, reanchor_distance: 
     return s
 
 
+def first_candidates(n_members: int, s_prev: np.ndarray | None) -> np.ndarray | None:
+    """(L,) bool members allowed for stage 0: within two of the previous assignment
+    ``s_prev``'s anchor ``s_prev[1]`` (None at a cold start)."""
+    if s_prev is None:
+        return None
+    anchor = int(s_prev[1])
+    cand = np.zeros(n_members, dtype=bool)
+    cand[max(0, anchor - 2) : min(n_members, anchor + 3)] = True
+    return cand
+
+
 def stage_boxes(chain: CorridorChain, s: np.ndarray) -> np.ndarray:
     """Stage boxes (N+1, 4) [m] of an assignment ``s`` (N+1,): ``shrink(C_{s(k-1)} ∩ C_{s(k)})``."""
     out = chain.stay[s].copy()
@@ -336,15 +353,20 @@ def exit_targets(
 
 
 def safe_area_params(chain: CorridorChain, rects: np.ndarray, members: tuple[int, int], slots: int,
-                     q_sa: np.ndarray, margin: float) -> np.ndarray:
+                     q_sa: np.ndarray, margin: float, all_or_none: bool = False) -> np.ndarray:
     """J_SA slot parameters (6 * slots,) (see :class:`SafeAreaPenalty`): the distinct safe
     areas of chain members ``members[0]..members[1]``, in order, shrunk by ``margin`` [m],
-    with priorities ``q_sa`` (slots,); unused slots inactive."""
+    with priorities ``q_sa`` (slots,); unused slots inactive. When there are more areas than
+    slots the first ``slots`` are used, or, with ``all_or_none``, none (every slot inactive,
+    J_SA a constant): a partial set penalises a point for being in an area it leaves out,
+    which held the front disc of a footprint back from areas its hard rows allow."""
     ids: list[int] = []
     for pair in chain.rect_pair[members[0] : members[1] + 1]:
         for r in pair:
             if int(r) not in ids:
                 ids.append(int(r))
+    if all_or_none and len(ids) > slots:
+        ids = []
     ids = ids[:slots]
     theta = np.zeros((slots, 6))
     theta[: len(ids), :4] = shrink_box(rects[ids], margin)
@@ -368,14 +390,22 @@ def relax_boxes(boxes: np.ndarray, p0: np.ndarray) -> tuple[np.ndarray, float]:
     side of the stage-0 box (see "Measured position outside its box" in
     :class:`~sanav_mj.control.sa_mpc.SAMPC`).
 
+    ``p0`` may also be (D, 2) [m], several points of the measured state (footprint disc
+    centres): each side is widened by the farthest point beyond it.
+
     Returns the boxes (N+1, 4) [m] and the excursion [m]: the distance of ``p0`` outside the
-    stage-0 box (0 inside).
+    stage-0 box (0 inside; for several points the largest).
     """
-    below = np.maximum(boxes[0, :2] - p0, 0.0)
-    above = np.maximum(p0 - boxes[0, 2:], 0.0)
+    p0 = np.asarray(p0, dtype=float)
+    pts = p0.reshape(-1, 2)
+    below_p = np.maximum(boxes[0, :2] - pts, 0.0)
+    above_p = np.maximum(pts - boxes[0, 2:], 0.0)
+    below, above = below_p.max(axis=0), above_p.max(axis=0)
     if not (below.any() or above.any()):
         return boxes, 0.0
     out = boxes.copy()
     out[1:, :2] -= below
     out[1:, 2:] += above
-    return out, float(np.hypot(*(below + above)))
+    if p0.ndim == 1:
+        return out, float(np.hypot(*(below + above)))
+    return out, float(np.max(np.hypot(*(below_p + above_p).T)))

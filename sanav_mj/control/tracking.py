@@ -231,6 +231,16 @@ class TrackingMPC:
         """Controller context of an opening-turn plan rolled out as ``xs`` (N+1, 3)."""
         return None
 
+    def turn_allowed(self, x0: np.ndarray) -> bool:
+        """Whether the robot at ``x0`` (3,) may turn on the spot (the opening turn); when not,
+        the MPC takes over at once (its constraints then decide how it turns)."""
+        return True
+
+    def state_clearance(self, xs: np.ndarray) -> np.ndarray | None:
+        """(P,) [m] slack of the states ``xs`` (P, 3) in the known free space (the braking
+        fallback's score): :meth:`clearance` of their positions unless overridden."""
+        return self.clearance(xs[:, :2])
+
     def commit(self, context: Any) -> None:
         """Keep the controller context of the plan just applied (called on accept and fallback)."""
 
@@ -343,7 +353,7 @@ class TrackingMPC:
         if self._turning:
             err = float(xr[0, 2] - x0[2])  # wrapped: the reference yaw is shifted to the measured branch
             limit = self.config.turn_in_place if k_step == 0 else self.config.turn_exit
-            if abs(err) > limit:
+            if abs(err) > limit and self.turn_allowed(x0):
                 return self._turn_step(x0, t0, err)
             self._turning = False
         u_guess = self._guess_inputs()
@@ -495,7 +505,7 @@ class TrackingMPC:
             if not np.all(np.isfinite(x0)):
                 return u
             xs = rollout_np(x0, u, self.dt)
-            slack = self.clearance(xs[1:, :2])
+            slack = self.state_clearance(xs[1:])
             if slack is None:
                 return u
             score = min(float(slack.min()), 0.05)

@@ -106,6 +106,33 @@ def planner_config(robot, spec: ControllerSpec = ControllerSpec()) -> Any:
     )
 
 
+def map_inflation(scenario: Scenario, spec: ControllerSpec = ControllerSpec()) -> float:
+    """[m] obstacle inflation of the map for ``spec``'s SA-MPC footprint mode: the
+    circumscribed radius + :data:`DEFAULT_MARGIN_M` (``"disc"``), or the radius of the
+    ``footprint_discs``-disc cover of the footprint rectangle + ``footprint_margin``
+    (``"discs"``, see :class:`~sanav_mj.control.config.MPCConfig`)."""
+    mpc = spec.sa_mpc
+    if mpc.footprint == "discs":
+        from sanav_mj.footprint import robot_footprint
+
+        return robot_footprint(scenario.model).discs(mpc.footprint_discs)[1] + mpc.footprint_margin
+    return scenario.robot.footprint_radius + DEFAULT_MARGIN_M
+
+
+def planning_areas(areas: SafeAreas, scenario: Scenario, spec: ControllerSpec = ControllerSpec()) -> SafeAreas:
+    """The safe areas the corridor search runs on: ``areas`` itself, or in ``"discs"`` mode
+    the same areas with ``footprint_narrow_penalty`` added to every edge through a place
+    narrower than what the circumscribed-disc map loses, ``2 (R + DEFAULT_MARGIN_M -
+    inflation)`` (:func:`sanav_mj.planning.corridor.penalise_narrow`)."""
+    mpc = spec.sa_mpc
+    if mpc.footprint != "discs" or mpc.footprint_narrow_penalty == 0:
+        return areas
+    from sanav_mj.planning.corridor import penalise_narrow
+
+    width = 2.0 * max(0.0, scenario.robot.footprint_radius + DEFAULT_MARGIN_M - map_inflation(scenario, spec))
+    return penalise_narrow(areas, width, mpc.footprint_narrow_penalty)
+
+
 def prepare(
     spec: str | Path | Scenario,
     resolution: float = 0.05,
@@ -126,14 +153,15 @@ def prepare(
     from sanav_mj.planning import plan as make_plan
 
     scenario = spec if isinstance(spec, Scenario) else load_scenario(spec)
-    inflation = scenario.robot.footprint_radius + DEFAULT_MARGIN_M
+    inflation = map_inflation(scenario, controller)
     try:
         m = build_map(scenario.obstacles, scenario.bounds, inflation, MapConfig(resolution=resolution, merge=merge))
     except MapMemoryError as err:  # name the file too (ScenarioError: exit 2)
         raise MapMemoryError(f"{scenario.path}: {err}") from None
     t0 = time.perf_counter()
     pose = scenario.start if start is None else np.asarray(start, dtype=float)
-    plan = make_plan(m.areas, pose, scenario.goal, scenario.robot, planner_config(scenario.robot, controller))
+    plan = make_plan(planning_areas(m.areas, scenario, controller), pose, scenario.goal, scenario.robot,
+                     planner_config(scenario.robot, controller))
     timing = dict(m.timing_ms)
     timing["plan"] = (time.perf_counter() - t0) * 1e3
     timing["total"] = timing.get("total", 0.0) + timing["plan"]
@@ -487,7 +515,8 @@ def _replan(prep: Prepared, start: np.ndarray, spec: ControllerSpec) -> Prepared
 
     t0 = time.perf_counter()
     robot = prep.scenario.robot
-    plan = make_plan(prep.areas, start, prep.scenario.goal, robot, planner_config(robot, spec))
+    plan = make_plan(planning_areas(prep.areas, prep.scenario, spec), start, prep.scenario.goal, robot,
+                     planner_config(robot, spec))
     timing = dict(prep.timing_ms)
     timing["plan"] = (time.perf_counter() - t0) * 1e3
     return Prepared(prep.scenario, prep.map, plan, timing)

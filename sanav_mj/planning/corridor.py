@@ -602,3 +602,38 @@ def select_corridor(
         return CorridorChoice(None, start_used, goal, f"goal is {d:.3f} m from the nearest reachable safe area")
     goal_used = project_into_rect(rects[g], goal, offset)
     return CorridorChoice(run(graph, s, g), start_used, goal_used)
+
+
+def penalise_narrow(areas: SafeAreas, width: float, penalty: float) -> SafeAreas:
+    """The same areas with ``penalty`` [m] added to the weight of every edge that crosses a
+    narrow place: its portal is shorter than ``width`` [m], or either area's short side is.
+
+    For a map inflated by a footprint disc radius r_d rather than the circumscribed radius R,
+    ``width = 2 (R - r_d)`` marks the passages where the circumscribed disc does not fit (the
+    robot can drive along them but cannot turn on the spot, and their staircases of
+    slivers stall the MPC): the corridor search then takes them only where a wider way is
+    longer by more than the penalty per such edge. The penalty keeps A*'s centre-distance
+    heuristic consistent (weights only grow).
+
+    Args:
+        areas: safe areas with portals (E, 2, 2) [m].
+        width: [m] >= 0.
+        penalty: [m] >= 0 added per narrow edge.
+
+    Raises:
+        ValueError: negative or non-finite ``width`` or ``penalty``.
+    """
+    from dataclasses import replace
+
+    for name, v in (("width", width), ("penalty", penalty)):
+        if not (np.isfinite(v) and v >= 0):
+            raise ValueError(f"penalise_narrow: {name} must be a finite number >= 0 m, got {v!r}")
+    if width == 0 or penalty == 0 or len(areas.weights) == 0:
+        return areas
+    rects = np.asarray(areas.rects, dtype=float)
+    short = np.minimum(rects[:, 2] - rects[:, 0], rects[:, 3] - rects[:, 1])
+    por = np.asarray(areas.portals, dtype=float)
+    plen = np.hypot(*(por[:, 1] - por[:, 0]).T)
+    e = np.asarray(areas.edges, dtype=int)
+    narrow = (plen < width) | (short[e[:, 0]] < width) | (short[e[:, 1]] < width)
+    return replace(areas, weights=np.asarray(areas.weights, dtype=float) + penalty * narrow)

@@ -1,0 +1,145 @@
+"""SA-MPC's footprint-discs mode (``MPCConfig.footprint="discs"``): per-disc stages, turns, escapes.
+
+The robot's footprint rectangle is covered by discs along its long axis
+(:meth:`sanav_mj.footprint.Footprint.discs`); in a map inflated by the disc radius every disc
+centre inside a safe area keeps its disc clear. :class:`DiscCover` gives each centre of the
+predicted states its own monotone stage assignment along the corridor chain and its own
+stage boxes (the front disc may already be in the next safe area while the rear one is still
+in the last: one convex box for all of them could never pass an L-turn of a strip narrower
+than the disc spacing), the row bounds in the OCP's order, the margins, the braking
+fallback's clearance and where the robot may turn on the spot. :class:`StallEscape` gives
+the escape warm starts of a stalled plan (see its docstring).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sanav_mj.control.footprint import disc_centres
+from sanav_mj.control.stages import (
+    CorridorChain,
+    assign_stages,
+    box_slack,
+    chain_slack,
+    first_candidates,
+    relax_boxes,
+    stage_boxes,
+)
+
+#: steps at rest before an escape guess is tried (see :class:`StallEscape`).
+STALL_STEPS = 3
+
+
+def escape_guesses(horizon: int) -> list[np.ndarray]:
+    """Escape warm starts (each (N, 2) [m/s, rad/s]) for a stalled ``"discs"`` SA-MPC: forward
+    at 0.2 m/s turning left / right at 1 rad/s, the same reversing, and turning on the spot at
+    +-1.5 rad/s; each ramps up over 3 steps, is held to step 10 and then rests (the terminal
+    stop). They only seed the solver and the stage assignment."""
+    k = np.arange(horizon)
+    ramp = np.where(k < 10, np.minimum(1.0, (k + 1) / 3.0), 0.0)
+    out = []
+    for v, w in ((0.2, 1.0), (0.2, -1.0), (-0.2, 1.0), (-0.2, -1.0), (0.0, 1.5), (0.0, -1.5)):
+        out.append(np.column_stack((v * ramp, w * ramp)))
+    return out
+
+
+@dataclass(frozen=True)
+class DiscCover:
+    """The disc cover of the footprint as SA-MPC's constrained points.
+
+    Attributes:
+        offsets: (D, 2) [m] disc centres in the body frame.
+        radius: [m] disc radius (the map's inflation is this plus the margin).
+        sweep: [m] radius of the circle the centres sweep turning on the spot.
+        centre: index of the disc nearest the base origin (its assignment gives the exit
+            targets and the reported stage data).
+    """
+
+    offsets: np.ndarray
+    radius: float
+    sweep: float
+    centre: int
+
+    @staticmethod
+    def of(footprint, n: int) -> DiscCover:
+        """The ``n``-disc cover of a :class:`sanav_mj.footprint.Footprint`."""
+        offsets, radius = footprint.discs(n)
+        d = np.hypot(*offsets.T)
+        return DiscCover(offsets, float(radius), float(d.max()), int(np.argmin(d)))
+
+    def centres(self, xs: np.ndarray) -> np.ndarray:
+        """(K, D, 2) [m] disc centres of the states ``xs`` (K, 3)."""
+        return disc_centres(xs, self.offsets)
+
+    def stages(self, chain: CorridorChain, xs: np.ndarray, s_prev: np.ndarray | None,
+               tol: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """Per disc centre of the states ``xs`` (N+1, 3): assignments (D, N+1) (each anchored
+        on its previous one, ``s_prev`` (D, N+1) or None), stage boxes (D, N+1, 4) [m] relaxed
+        around its stage-0 centre, and the largest excursion [m] of a stage-0 centre."""
+        pts = self.centres(xs)
+        ss, bs, exc = [], [], 0.0
+        for d in range(pts.shape[1]):
+            cand = first_candidates(len(chain), None if s_prev is None else s_prev[d])
+            s = assign_stages(chain, pts[:, d], cand, tol=tol)
+            b, e = relax_boxes(stage_boxes(chain, s), pts[0, d])
+            ss.append(s)
+            bs.append(b)
+            exc = max(exc, e)
+        return np.array(ss), np.array(bs), exc
+
+    @staticmethod
+    def bounds(bs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds (2DN,) of the OCP's rows (stage-major, disc, x/y) from the
+        stage boxes (D, N+1, 4) (row 0, the measured state, is not a row)."""
+        return bs[:, 1:, :2].transpose(1, 0, 2).ravel(), bs[:, 1:, 2:].transpose(1, 0, 2).ravel()
+
+    def margins(self, xs: np.ndarray, bs: np.ndarray) -> np.ndarray:
+        """(K,) [m] smallest slack of any disc centre of the states (K, 3) in its own box (D, K, 4)."""
+        pts = self.centres(xs)
+        return np.min([box_slack(pts[:, d], bs[d]) for d in range(pts.shape[1])], axis=0)
+
+    def clearance(self, chain: CorridorChain, xs: np.ndarray) -> np.ndarray:
+        """(P,) [m] of the states (P, 3): the worst disc centre's largest slack over the chain's members."""
+        pts = self.centres(xs)
+        return np.min([chain_slack(chain, pts[:, d]) for d in range(pts.shape[1])], axis=0)
+
+    def turn_allowed(self, chain: CorridorChain, x0: np.ndarray) -> bool:
+        """Whether the circle of radius :attr:`sweep` about the position of ``x0`` (3,) fits in
+        one stay box of the chain: turning on the spot there keeps every centre in it."""
+        st = chain.stay
+        sl = np.minimum(np.minimum(x0[0] - st[:, 0], st[:, 2] - x0[0]), np.minimum(x0[1] - st[:, 1], st[:, 3] - x0[1]))
+        return bool(sl.max() >= self.sweep)
+
+
+class StallEscape:
+    """Escape warm starts for a plan stuck at rest.
+
+    The stage assignment follows the warm start: from a plan at rest it never advances, and
+    with the footprint's discs in slivers the solver's optimum from there can be to stay (a
+    local minimum of the non-convex problem; measured on the BARN-like worlds: 27 of 100 runs
+    stopped so). Once the applied input has stayed at rest (``|v| < 0.02 m/s``,
+    ``|w| < 0.05 rad/s``) for :data:`STALL_STEPS` steps away from the reference's end, the
+    next of :func:`escape_guesses` replaces the shifted plan as the warm start (7 of those 27
+    runs then reached the goal); the solution is checked against every constraint as usual.
+    """
+
+    def __init__(self, horizon: int):
+        self.guesses = escape_guesses(horizon)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the stall (new episode)."""
+        self.still = 0
+        self.index = 0
+
+    def next_guess(self, u_prev: np.ndarray, at_end: bool) -> np.ndarray | None:
+        """The escape guess (N, 2) to use this step, or None (``u_prev`` (2,) the applied input)."""
+        moving = abs(u_prev[0]) >= 0.02 or abs(u_prev[1]) >= 0.05
+        self.still = 0 if (moving or at_end) else self.still + 1
+        if self.still < STALL_STEPS:
+            return None
+        g = self.guesses[self.index % len(self.guesses)]
+        self.index += 1
+        return g
