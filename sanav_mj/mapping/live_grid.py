@@ -312,6 +312,7 @@ class LiveGrid:
         self._route.reshape(ny + 2 * r, self._pw)[r:r + ny, r:r + nx] = dilate_count(states == OCCUPIED,
                                                                                      self._offsets)
         self._mark = np.zeros(ny * nx, dtype=np.int8)
+        self._stamp = np.zeros(ny * nx, dtype=np.int64)  # scratch of integrate(): deduplication
         self._floor = np.full(ny * nx, config.l_min, dtype=np.float32)  # per-cell lower clamp
         self._delta = np.array([0.0, config.l_free, config.l_occ], dtype=np.float32)
 
@@ -328,7 +329,10 @@ class LiveGrid:
 
     def _state(self, lo: np.ndarray) -> np.ndarray:
         c = self.config
-        return np.where(lo >= c.occ_thresh, OCCUPIED, np.where(lo <= c.free_thresh, FREE, UNKNOWN)).astype(np.int8)
+        # free_thresh < occ_thresh: the two tests never both hold (FREE = 1, OCCUPIED = 2)
+        s = (lo <= c.free_thresh).view(np.int8)
+        s += (lo >= c.occ_thresh).view(np.int8) * np.int8(OCCUPIED)
+        return s
 
     def safe(self) -> np.ndarray:
         """(ny, nx) bool: observed free and no occupied or unknown cell within the inflation radius."""
@@ -454,6 +458,11 @@ class LiveGrid:
         mark[free] = 1
         mark[occ] = 2  # a cell hit in this scan counts as hit, not crossed
         touched = np.concatenate([free, occ])
+        # each cell once (cells near the sensor are crossed by hundreds of beams): one
+        # occurrence per cell keeps the stamp it wrote, whichever write won
+        pos = np.arange(len(touched), dtype=np.int64)
+        self._stamp[touched] = pos
+        touched = touched[self._stamp[touched] == pos]
         lo = self.log_odds.reshape(-1)
         old = lo[touched]
         c = self.config
@@ -467,18 +476,13 @@ class LiveGrid:
         else:
             hit_old = hit_new = np.zeros(len(touched), dtype=bool)
         mark[touched] = 0
-        lo[touched] = new  # duplicates write the same value: each cell is updated once
+        lo[touched] = new
         s_old = self._state(old)
         s_new = self._state(new)
         ch = s_old != s_new
-        changed = touched[ch]
-        # a cell listed twice (crossed by several beams) changed once: keep one occurrence
-        _, first = np.unique(changed, return_index=True)
-        keep = np.zeros(len(changed), dtype=bool)
-        keep[first] = True
-        state_changed = changed[keep]
-        was_free = s_old[ch][keep] == FREE
-        is_free = s_new[ch][keep] == FREE
+        state_changed = touched[ch]
+        was_free = s_old[ch] == FREE
+        is_free = s_new[ch] == FREE
         flip = was_free != is_free
         safe_changed = self._spread(self._pad, state_changed[flip], np.where(is_free[flip], -1, 1).astype(np.int32))
         # route blocking: occupied now, or ever held a return (with hit_floor); cells that
@@ -486,6 +490,6 @@ class LiveGrid:
         rb_old = (s_old == OCCUPIED) | hit_old
         rb_new = (s_new == OCCUPIED) | hit_new
         rch = rb_old != rb_new
-        rcells, rfirst = np.unique(touched[rch], return_index=True)
-        route_changed = self._spread(self._route, rcells, np.where(rb_new[rch][rfirst], 1, -1).astype(np.int32))
+        rcells = touched[rch]
+        route_changed = self._spread(self._route, rcells, np.where(rb_new[rch], 1, -1).astype(np.int32))
         return MapUpdate(state_changed, safe_changed, route_changed)
