@@ -251,7 +251,8 @@ def crossed_cells(u0, v0, u1, v1, ny: int, nx: int) -> np.ndarray:
     # between its (clipped) ends the segment's minor coordinate stays between theirs: clip
     # away rounding at the grid edge (a minor cell of -1 for a segment along the border)
     fb0, fb1 = np.floor(b0), np.floor(b1)
-    np.clip(exit_, np.repeat(np.minimum(fb0, fb1), n), np.repeat(np.maximum(fb0, fb1), n), out=exit_)
+    np.maximum(exit_, np.repeat(np.minimum(fb0, fb1), n), out=exit_)  # clip (finite values)
+    np.minimum(exit_, np.repeat(np.maximum(fb0, fb1), n), out=exit_)
     exit_[start + n - 1] = fb1
     entry = np.empty_like(exit_)
     entry[1:] = exit_[:-1]
