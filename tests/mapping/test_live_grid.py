@@ -279,3 +279,42 @@ def test_log_odds_match_a_per_cell_reference_over_many_scans():
             ref[cell] = max(v, floor[cell])
         assert np.array_equal(g.log_odds.reshape(-1), ref)
     assert np.count_nonzero(ref < 0) > 200 and np.count_nonzero(ref > 1.5) > 20
+
+
+def test_compiled_and_numpy_traversal_give_the_same_cells_and_grid():
+    """The compiled beam loop (when a C compiler exists) and the NumPy fallback: the same
+    distinct cells as crossed_cells on random segments (inside, leaving and outside the grid,
+    axis-parallel, degenerate), and bit-identical grids over a sequence of scans."""
+    from sanav_mj.mapping.beam_kernel import free_cells, kernel_available
+    from sanav_mj.mapping.live_grid import crossed_cells, segment_columns
+
+    rng = np.random.default_rng(3)
+    ny, nx = 37, 53
+    u0, v0 = rng.uniform(-5, nx + 5, 400), rng.uniform(-5, ny + 5, 400)
+    u1, v1 = rng.uniform(-5, nx + 5, 400), rng.uniform(-5, ny + 5, 400)
+    u1[:40], v1[40:80] = u0[:40], v0[40:80]  # vertical and horizontal segments
+    u1[80:90], v1[80:90] = u0[80:90], v0[80:90]  # points
+    u0[90:140], v0[90:140] = np.round(u0[90:140]), np.round(v0[90:140])  # on cell corners
+    expect = np.unique(crossed_cells(u0, v0, u1, v1, ny, nx))
+    for use in (True, False):
+        mark = np.zeros(ny * nx, np.int8)
+        got = free_cells(segment_columns(u0, v0, u1, v1, ny, nx), mark, use_kernel=use)
+        assert len(got) == len(np.unique(got)) and np.array_equal(np.sort(got), expect)
+        assert np.array_equal(np.flatnonzero(mark), expect)
+    if kernel_available():  # the compiled loop checks every index it writes
+        with pytest.raises(IndexError, match="left the grid"):
+            free_cells(segment_columns([1.5], [1.5], [9.5], [1.5], ny, nx), np.zeros(5, np.int8))
+    grids = [LiveGrid((0.0, 0.0, 6.05, 4.0), 0.1, 0.23) for _ in range(2)]
+    grids[1]._use_kernel = False
+    angles = np.linspace(-2.3, 2.3, 181)
+    for _ in range(10):
+        room = (0.2, 0.2, rng.uniform(2.5, 5.9), 3.8)
+        pose = (rng.uniform(0.5, 2.3), rng.uniform(0.5, 3.5), rng.uniform(-np.pi, np.pi))
+        ranges, hit = _room_scan(pose, angles, room, max_range=rng.uniform(1.5, 6.0))
+        ups = [g.integrate(pose[:2], pose[2], ranges, hit, angles) for g in grids]
+        assert np.array_equal(np.sort(ups[0].state_changed), np.sort(ups[1].state_changed))
+        assert np.array_equal(ups[0].safe_changed, ups[1].safe_changed)
+        assert np.array_equal(ups[0].route_changed, ups[1].route_changed)
+        assert np.array_equal(grids[0].log_odds, grids[1].log_odds)
+        assert np.array_equal(grids[0]._pad, grids[1]._pad) and np.array_equal(grids[0]._route, grids[1]._route)
+
