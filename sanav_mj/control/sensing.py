@@ -269,11 +269,17 @@ class SensingSAMPC:
         """(P,) bool: each point (P, 2) [m] lies in a cell that ``ok_at`` accepts, cells taken
         as closed squares (a point on a cell edge, where the planner's closed rectangles put
         samples, counts for either side)."""
-        e = 1e-6 * self.map.grid.resolution
-        out = np.zeros(len(pts), dtype=bool)
-        for dx, dy in ((-e, -e), (-e, e), (e, -e), (e, e)):
-            out |= ok_at(self._cells(pts + np.array([dx, dy])))
-        return out
+        g = self.map.grid
+        ny, nx = g.shape
+        e = 1e-6 * g.resolution
+        # the cells of the four points shifted by (+-e, +-e): column and row once per sign
+        # (the same arithmetic as _cells on each shifted point), one lookup for all four
+        j = [np.clip(np.floor((pts[:, 0] + dx - g.origin[0]) / g.resolution).astype(np.int64), 0, nx - 1)
+             for dx in (-e, e)]
+        i = [np.clip(np.floor((pts[:, 1] + dy - g.origin[1]) / g.resolution).astype(np.int64), 0, ny - 1)
+             for dy in (-e, e)]
+        cells = np.concatenate([i[0] * nx + j[0], i[1] * nx + j[0], i[0] * nx + j[1], i[1] * nx + j[1]])
+        return ok_at(cells).reshape(4, len(pts)).any(axis=0)
 
     def _route_clear(self) -> bool:
         return bool(self._in_ok_cells(self.route, self.map.grid.route_safe_at).all())
