@@ -9,15 +9,27 @@ check: the smallest reduction of the inflation for which every safe cell of the 
 free in the known-map grid (0 = the lidar map's safe cells are inside the known map's).
 
     PYTHONPATH=$PWD python scripts/bench_sensing.py [SCENARIO ...] [--seed N]
+
+``--loop``: the closed loop instead (``run SCENARIO --sensing lidar``, seed ``--seed``), per
+step: pipeline (scan + map update + replan check and plan + solve), map update per scan,
+replan time per plan (the first included), as mean / p99 [ms]. With ``--against TREE`` (a source tree of
+another version of the package, e.g. ``git worktree add /tmp/base <commit>``), both versions
+run alternately, ``--repeat`` times each, in fresh processes under the same machine load,
+and the run JSONs (wall-clock fields ``*_ms`` aside) are compared:
+
+    PYTHONPATH=$PWD python scripts/bench_sensing.py --loop u_shape v_shape complex --against /tmp/base --repeat 3
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
+import subprocess
 import sys
 import time
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -74,12 +86,76 @@ def run(name: str, seed: int) -> str:
             f"{f(t['route'])}  {f(t['total'])}  {len(up.boxes):5d}  {delta:.3f}")
 
 
+_WORKER = """
+import json, sys
+from sanav_mj.eval.episode import run_scenario
+out = run_scenario(sys.argv[1], seed=int(sys.argv[2]), sensing="lidar")
+rec = out.sensed.records
+print(json.dumps({"pipeline": list(out.episode.trace.pipeline_ms), "map": out.sensed.map_update_ms,
+                  "replan": [r.replan_ms for r in rec if r.replan is not None], "doc": out.document}))
+"""
+
+
+def _strip_ms(x):
+    """A run document without its wall-clock fields (keys ending in ``_ms``)."""
+    if isinstance(x, dict):
+        return {k: _strip_ms(v) for k, v in x.items() if not k.endswith("_ms")}
+    if isinstance(x, list):
+        return [_strip_ms(v) for v in x]
+    return x
+
+
+def loop(names: list[str], seed: int, against: str | None, repeat: int) -> int:
+    """The closed-loop per-step times of this tree (and of ``against``), printed as a table."""
+    trees = {"new": str(Path(__file__).resolve().parents[1])}
+    if against:
+        trees = {"old": str(Path(against).resolve()), **trees}
+    print(f"load average {os.getloadavg()[0]:.2f} (start); {repeat} run(s) per version, alternating; "
+          "ms as mean / p99 over all steps (scans, replans) of the runs")
+    print(f"{'scenario':10s} {'ver':3s}  {'pipeline':^15s}  {'map update':^15s}  {'replan':^15s}    plans  load")
+    sys.stdout.flush()
+    status = 0
+    for name in names:
+        acc: dict[str, dict[str, list]] = {v: {"pipeline": [], "map": [], "replan": [], "load": []} for v in trees}
+        docs: dict[str, list] = {v: [] for v in trees}
+        for _ in range(repeat):
+            for ver, tree in trees.items():
+                env = {**os.environ, "PYTHONPATH": tree}
+                proc = subprocess.run([sys.executable, "-c", _WORKER, name, str(seed)], env=env, cwd=tree,
+                                      capture_output=True, text=True, check=False)
+                if proc.returncode != 0:
+                    print(f"bench_sensing: {ver} run of {name} failed: {proc.stderr.strip()[-500:]}", file=sys.stderr)
+                    return 3
+                r = json.loads(proc.stdout.strip().splitlines()[-1])
+                for k in ("pipeline", "map", "replan"):
+                    acc[ver][k].extend(r[k])
+                acc[ver]["load"].append(os.getloadavg()[0])
+                docs[ver].append(_strip_ms(r["doc"]))
+        for ver in trees:
+            a = acc[ver]
+
+            def f(v):
+                return f"{np.mean(v):6.2f} / {np.percentile(v, 99):6.2f}" if len(v) else f"{'-':^15s}"
+
+            print(f"{name:10s} {ver:3s}  {f(a['pipeline'])}  {f(a['map'])}  {f(a['replan'])}  "
+                  f"{len(a['replan']) // repeat:7d}  {np.mean(a['load']):4.2f}")
+        same = all(d == docs["new"][0] for v in trees for d in docs[v])
+        print(f"{name:10s} run JSON (without *_ms) {'identical' if same else 'DIFFERENT'} across versions and runs")
+        status = status or (0 if same else 1)
+    return status
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("scenarios", nargs="*", help="scenario paths or built-in names (default: all built-in)")
     p.add_argument("--seed", type=int, default=0, help="range-noise seed (default 0)")
+    p.add_argument("--loop", action="store_true", help="time the closed loop (run --sensing lidar) per step")
+    p.add_argument("--against", metavar="TREE", help="with --loop: also run this source tree, alternately")
+    p.add_argument("--repeat", type=int, default=1, help="with --loop: runs per version (default 1)")
     a = p.parse_args(argv)
     names = a.scenarios or list(builtin_scenarios())
+    if a.loop:
+        return loop(names, a.seed, a.against, max(1, a.repeat))
     print(f"load average {os.getloadavg()[0]:.2f}; ms as mean / median / p99")
     print(f"{'scenario':12s} {'scans':>4s}  {'cast':>5s}  {'map update':^21s}  {'safe areas':^21s}  "
           f"{'route areas':^21s}  {'total':^21s}  {'rects':>5s}  delta_m")

@@ -170,7 +170,7 @@ class SensingSAMPC:
         self._areas: SafeAreas | None = None
         self._boxes = np.zeros((0, 4), dtype=np.int64)
         self.plan_boxes = self._boxes
-        self._route_areas: SafeAreas | None = None
+        self._have_route = False  # route areas exist (after the first scan, when kept)
         self._corridor_rects = np.zeros((0, 4))
         self.route: np.ndarray | None = None
         self.local_goal: np.ndarray | None = None
@@ -212,14 +212,16 @@ class SensingSAMPC:
             t0 = time.perf_counter()
             changed = False
             if self.mpc is None or not self.map.grid.safe_at(self._cells(pose[None, :2]))[0]:
-                changed = self.map.clear_footprint(pose, self.robot.footprint_radius).changed
+                changed = self.map.clear_footprint(pose, self.robot.footprint_radius, route_snapshot=False).changed
             k = self.config.beam_stride
-            up = self.map.integrate(pose, obs.scan.ranges[::k], obs.scan.hit[::k], obs.scan.angles[::k])
+            # the route areas are needed only to plan: their snapshot is taken in _replan
+            up = self.map.integrate(pose, obs.scan.ranges[::k], obs.scan.hit[::k], obs.scan.angles[::k],
+                                    route_snapshot=False)
             map_ms = (time.perf_counter() - t0) * 1e3
             changed = up.changed or changed
             self._areas = up.areas
             self._boxes = up.boxes
-            self._route_areas = up.route_areas
+            self._have_route = self.map.route is not None
             self._grown = self._grown or changed
         self._since_plan += 1
         reason = self._replan_reason(changed, pose)
@@ -249,7 +251,7 @@ class SensingSAMPC:
             return "initial" if safe_here or turned_out else None
         if changed and len(self._corridor_rects) and not self.map.rects_still_safe(self._corridor_rects).all():
             return "blocked"
-        if self.route is not None and self._route_areas is not None and not self._route_clear():
+        if self.route is not None and self._have_route and not self._route_clear():
             return "route"
         far = np.hypot(*(self.local_goal - self.goal)) > 1e-9
         if far and self._grown and self._since_plan >= self.config.replan_interval:
@@ -267,11 +269,17 @@ class SensingSAMPC:
         """(P,) bool: each point (P, 2) [m] lies in a cell that ``ok_at`` accepts, cells taken
         as closed squares (a point on a cell edge, where the planner's closed rectangles put
         samples, counts for either side)."""
-        e = 1e-6 * self.map.grid.resolution
-        out = np.zeros(len(pts), dtype=bool)
-        for dx, dy in ((-e, -e), (-e, e), (e, -e), (e, e)):
-            out |= ok_at(self._cells(pts + np.array([dx, dy])))
-        return out
+        g = self.map.grid
+        ny, nx = g.shape
+        e = 1e-6 * g.resolution
+        # the cells of the four points shifted by (+-e, +-e): column and row once per sign
+        # (the same arithmetic as _cells on each shifted point), one lookup for all four
+        j = [np.clip(np.floor((pts[:, 0] + dx - g.origin[0]) / g.resolution).astype(np.int64), 0, nx - 1)
+             for dx in (-e, e)]
+        i = [np.clip(np.floor((pts[:, 1] + dy - g.origin[1]) / g.resolution).astype(np.int64), 0, ny - 1)
+             for dy in (-e, e)]
+        cells = np.concatenate([i[0] * nx + j[0], i[1] * nx + j[0], i[0] * nx + j[1], i[1] * nx + j[1]])
+        return ok_at(cells).reshape(4, len(pts)).any(axis=0)
 
     def _route_clear(self) -> bool:
         return bool(self._in_ok_cells(self.route, self.map.grid.route_safe_at).all())
@@ -279,8 +287,9 @@ class SensingSAMPC:
     def _replan(self, pose: np.ndarray, speed: float = 0.0) -> bool:
         """Plan route and local corridor from ``pose`` with the reference starting at the
         measured forward ``speed`` [m/s]; True when the MPC follows a new plan."""
-        route_plan = make_plan(self._route_areas, pose, self.goal, self.robot, self.planner) \
-            if self._route_areas is not None else None
+        route_areas = self.map.route_areas()[1] if self._have_route else None
+        route_plan = make_plan(route_areas, pose, self.goal, self.robot, self.planner) \
+            if route_areas is not None else None
         if route_plan is not None and route_plan.ok and route_plan.reference is not None:
             # the reference samples only: they end at the plan's goal (the goal projected
             # into the route areas when it lies within the inflation of an obstacle), so a

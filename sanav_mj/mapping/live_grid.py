@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sanav_mj.mapping.beam_kernel import expand_columns, free_cells
 from sanav_mj.mapping.occupancy import OccupancyGrid, grid_shape
 
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
@@ -196,26 +197,29 @@ def traverse(u0: np.ndarray, v0: np.ndarray, u1: np.ndarray, v1: np.ndarray
     return beam, np.where(xm, minor, col), np.where(xm, col, minor)
 
 
-def crossed_cells(u0, v0, u1, v1, ny: int, nx: int) -> np.ndarray:
-    """Flat indices ``i * nx + j`` of the cells of an (ny, nx) grid crossed by segments.
+def segment_columns(u0, v0, u1, v1, ny: int, nx: int) -> dict[str, np.ndarray]:
+    """Segments clipped to an (ny, nx) grid, in the per-column form of the traversal.
 
-    The same cells as :func:`traverse` keeps inside the grid, faster: each segment is first
-    clipped to the grid (Liang-Barsky), so no work is spent outside it, and the flat index is
-    formed directly (major-axis stride plus minor-axis stride).
+    Each segment is clipped to the grid (Liang-Barsky, to ``[eps, n - eps]`` with
+    ``eps = 1e-9`` cell, so ``floor`` of the clipped points stays inside the grid) and
+    stepped along its major axis: column ``k`` (``0 <= k < n``) ends at minor coordinate
+    ``floor(base + k * inc)`` clamped to ``[lo, hi]`` (the minor cells of the clipped end
+    points: rounding at the grid edge is clipped away), the last column at ``fb1``, the first
+    starts at ``fb0``; its flat cell index is ``major0 + k * major_step + minor * minor_stride``.
 
     Args:
         u0, v0, u1, v1: (B,) float segment end points in cell units (x = column, y = row).
         ny, nx: grid shape.
 
     Returns:
-        (M,) int64 flat indices; a cell crossed by several segments appears once per segment.
+        dict of (B',) arrays, B' <= B the segments meeting the grid: float64 ``base``,
+        ``inc``, ``lo``, ``hi``, ``fb0``, ``fb1``; int64 ``n``, ``major0``, ``major_step``,
+        ``minor_stride``.
     """
     u0, v0, u1, v1 = (np.asarray(a, dtype=float) for a in (u0, v0, u1, v1))
     du, dv = u1 - u0, v1 - v0
     t0 = np.zeros(len(u0))
     t1 = np.ones(len(u0))
-    # clip to [eps, n - eps] (eps = 1e-9 cell): floor() of the clipped points, rounding
-    # included, then stays inside the grid
     eps = 1e-9
     for p, q, hi in ((du, u0, nx - eps), (dv, v0, ny - eps)):
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -244,23 +248,27 @@ def crossed_cells(u0, v0, u1, v1, ny: int, nx: int) -> np.ndarray:
     base = b0 + (c0 + (step > 0) - a0) * slope
     major_stride = np.where(xmajor, 1.0, float(nx))
     minor_stride = np.where(xmajor, float(nx), 1.0)
-    start = np.cumsum(n) - n
-    total = int(n.sum())
-    k = np.arange(total, dtype=float) - np.repeat(start.astype(float), n)
-    exit_ = np.floor(np.repeat(base, n) + k * np.repeat(step * slope, n))
-    # between its (clipped) ends the segment's minor coordinate stays between theirs: clip
-    # away rounding at the grid edge (a minor cell of -1 for a segment along the border)
     fb0, fb1 = np.floor(b0), np.floor(b1)
-    np.clip(exit_, np.repeat(np.minimum(fb0, fb1), n), np.repeat(np.maximum(fb0, fb1), n), out=exit_)
-    exit_[start + n - 1] = fb1
-    entry = np.empty_like(exit_)
-    entry[1:] = exit_[:-1]
-    entry[start] = fb0
-    ms = np.repeat(minor_stride, n)
-    major = np.repeat(c0 * major_stride, n) + k * np.repeat(step * major_stride, n)
-    flat = major + entry * ms
-    two = entry != exit_
-    return np.concatenate([flat, major[two] + exit_[two] * ms[two]]).astype(np.int64)
+    return {"base": base, "inc": step * slope, "lo": np.minimum(fb0, fb1), "hi": np.maximum(fb0, fb1),
+            "fb0": fb0, "fb1": fb1, "n": n, "major0": (c0 * major_stride).astype(np.int64),
+            "major_step": (step * major_stride).astype(np.int64), "minor_stride": minor_stride.astype(np.int64)}
+
+
+def crossed_cells(u0, v0, u1, v1, ny: int, nx: int) -> np.ndarray:
+    """Flat indices ``i * nx + j`` of the cells of an (ny, nx) grid crossed by segments.
+
+    The same cells as :func:`traverse` keeps inside the grid, faster: each segment is first
+    clipped to the grid (Liang-Barsky, :func:`segment_columns`), so no work is spent outside
+    it, and the flat index is formed directly (major-axis stride plus minor-axis stride).
+
+    Args:
+        u0, v0, u1, v1: (B,) float segment end points in cell units (x = column, y = row).
+        ny, nx: grid shape.
+
+    Returns:
+        (M,) int64 flat indices; a cell crossed by several segments appears once per segment.
+    """
+    return expand_columns(segment_columns(u0, v0, u1, v1, ny, nx))
 
 
 class LiveGrid:
@@ -312,6 +320,8 @@ class LiveGrid:
         self._route.reshape(ny + 2 * r, self._pw)[r:r + ny, r:r + nx] = dilate_count(states == OCCUPIED,
                                                                                      self._offsets)
         self._mark = np.zeros(ny * nx, dtype=np.int8)
+        self._stamp = np.zeros(ny * nx, dtype=np.int64)  # scratch of the NumPy traversal
+        self._use_kernel = True  # the compiled traversal when available (False: NumPy, for tests)
         self._floor = np.full(ny * nx, config.l_min, dtype=np.float32)  # per-cell lower clamp
         self._delta = np.array([0.0, config.l_free, config.l_occ], dtype=np.float32)
 
@@ -328,7 +338,10 @@ class LiveGrid:
 
     def _state(self, lo: np.ndarray) -> np.ndarray:
         c = self.config
-        return np.where(lo >= c.occ_thresh, OCCUPIED, np.where(lo <= c.free_thresh, FREE, UNKNOWN)).astype(np.int8)
+        # free_thresh < occ_thresh: the two tests never both hold (FREE = 1, OCCUPIED = 2)
+        s = (lo <= c.free_thresh).view(np.int8)
+        s += (lo >= c.occ_thresh).view(np.int8) * np.int8(OCCUPIED)
+        return s
 
     def safe(self) -> np.ndarray:
         """(ny, nx) bool: observed free and no occupied or unknown cell within the inflation radius."""
@@ -445,15 +458,17 @@ class LiveGrid:
         v0 = (o[1] - self.origin[1]) / h
         u1 = u0 + r * np.cos(a) / h
         v1 = v0 + r * np.sin(a) / h
-        free = crossed_cells(np.full(len(r), u0), np.full(len(r), v0), u1, v1, ny, nx)
+        mark = self._mark
+        # the cells crossed before the beams' ends, each once, marked 1 (compiled loop, or NumPy)
+        free = free_cells(segment_columns(np.full(len(r), u0), np.full(len(r), v0), u1, v1, ny, nx), mark,
+                          self._stamp, self._use_kernel)
         ei = np.floor(v1[hit]).astype(np.int64)
         ej = np.floor(u1[hit]).astype(np.int64)
         ein = (ei >= 0) & (ei < ny) & (ej >= 0) & (ej < nx)
         occ = (ei * nx + ej)[ein]
-        mark = self._mark
-        mark[free] = 1
+        extra = np.unique(occ[mark[occ] == 0])  # return cells no beam crossed
         mark[occ] = 2  # a cell hit in this scan counts as hit, not crossed
-        touched = np.concatenate([free, occ])
+        touched = np.concatenate([free, extra])
         lo = self.log_odds.reshape(-1)
         old = lo[touched]
         c = self.config
@@ -467,18 +482,13 @@ class LiveGrid:
         else:
             hit_old = hit_new = np.zeros(len(touched), dtype=bool)
         mark[touched] = 0
-        lo[touched] = new  # duplicates write the same value: each cell is updated once
+        lo[touched] = new
         s_old = self._state(old)
         s_new = self._state(new)
         ch = s_old != s_new
-        changed = touched[ch]
-        # a cell listed twice (crossed by several beams) changed once: keep one occurrence
-        _, first = np.unique(changed, return_index=True)
-        keep = np.zeros(len(changed), dtype=bool)
-        keep[first] = True
-        state_changed = changed[keep]
-        was_free = s_old[ch][keep] == FREE
-        is_free = s_new[ch][keep] == FREE
+        state_changed = touched[ch]
+        was_free = s_old[ch] == FREE
+        is_free = s_new[ch] == FREE
         flip = was_free != is_free
         safe_changed = self._spread(self._pad, state_changed[flip], np.where(is_free[flip], -1, 1).astype(np.int32))
         # route blocking: occupied now, or ever held a return (with hit_floor); cells that
@@ -486,6 +496,6 @@ class LiveGrid:
         rb_old = (s_old == OCCUPIED) | hit_old
         rb_new = (s_new == OCCUPIED) | hit_new
         rch = rb_old != rb_new
-        rcells, rfirst = np.unique(touched[rch], return_index=True)
-        route_changed = self._spread(self._route, rcells, np.where(rb_new[rch][rfirst], 1, -1).astype(np.int32))
+        rcells = touched[rch]
+        route_changed = self._spread(self._route, rcells, np.where(rb_new[rch], 1, -1).astype(np.int32))
         return MapUpdate(state_changed, safe_changed, route_changed)

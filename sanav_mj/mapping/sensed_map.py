@@ -64,10 +64,11 @@ class SensedUpdate:
         boxes: (R, 4) int64 cell boxes of the safe areas, sorted by ``(i0, j0)``.
         areas: the safe areas and their graph (world metres).
         route_changed: whether any cell's route state changed.
-        route_boxes, route_areas: the route areas (``None`` when the map keeps none).
+        route_boxes, route_areas: the route areas (``None`` when the map keeps none, or
+            when the update was asked without them: :meth:`SensedMap.route_areas`).
         timing_ms: [ms] ``map`` (grid update and inflation), ``areas`` (incremental
             quadtree / merge / graph), ``snapshot`` (compact arrays), ``route`` (the same two
-            for the route areas), ``total``.
+            for the route areas; the snapshot only when asked for), ``total``.
     """
 
     changed: bool
@@ -104,8 +105,9 @@ class SensedMap:
         self.route = (IncrementalSafeAreas(self.grid.route_grid(), config.min_cell, config.tile)
                       if config.route else None)
         self._route_snapshot = self.route.safe_areas() if self.route is not None else (None, None)
+        self._route_stale = False  # route areas updated since the last route snapshot
 
-    def integrate(self, pose, ranges, hit, angles) -> SensedUpdate:
+    def integrate(self, pose, ranges, hit, angles, route_snapshot: bool = True) -> SensedUpdate:
         """Add one scan taken at the measured robot pose.
 
         Args:
@@ -113,6 +115,9 @@ class SensedMap:
                 the map is built where the robot believes it is).
             ranges: (B,) [m] ranges; hit: (B,) bool returns; angles: (B,) [rad] beam
                 directions relative to the robot heading.
+            route_snapshot: also return the route areas (``route_boxes``, ``route_areas``);
+                False leaves them None in the result (the route areas are still updated;
+                :meth:`route_areas` gives them when needed, e.g. only at replans).
 
         Returns:
             What changed and the current safe areas, with timings.
@@ -123,9 +128,19 @@ class SensedMap:
         c, s = math.cos(p[2]), math.sin(p[2])
         ox, oy = self.sensor_offset
         origin = (p[0] + c * ox - s * oy, p[1] + s * ox + c * oy)
-        return self._integrate_at(origin, float(p[2]), ranges, hit, angles)
+        return self._integrate_at(origin, float(p[2]), ranges, hit, angles, route_snapshot)
 
-    def clear_footprint(self, pose, radius: float, beams: int = 64) -> SensedUpdate:
+    def route_areas(self) -> tuple[np.ndarray | None, SafeAreas | None]:
+        """The current route areas: (R, 4) int64 cell boxes and :class:`SafeAreas` (as
+        :class:`SensedUpdate` ``route_boxes``, ``route_areas``); ``(None, None)`` when the map
+        keeps none. The compact snapshot is taken only when the route areas changed since the
+        last one."""
+        if self.route is not None and self._route_stale:
+            self._route_snapshot = self.route.safe_areas()
+            self._route_stale = False
+        return self._route_snapshot
+
+    def clear_footprint(self, pose, radius: float, beams: int = 64, route_snapshot: bool = True) -> SensedUpdate:
         """Observe the disc the robot's body covers as free (nothing else can be there).
 
         A 2-D lidar ahead of the axle never sees the cells under and just behind the robot
@@ -138,6 +153,7 @@ class SensedMap:
             pose: (3,) [m, m, rad] measured robot pose.
             radius: [m] footprint radius (the circumscribed disc), >= 0.
             beams: number of beams over the full circle, >= 8.
+            route_snapshot: as :meth:`integrate`.
 
         Returns:
             The update, as :meth:`integrate`.
@@ -149,9 +165,11 @@ class SensedMap:
             raise ValueError(f"radius must be finite >= 0 [m] and beams >= 8, got {radius!r}, {beams!r}")
         angles = np.linspace(-math.pi, math.pi, int(beams), endpoint=False)
         ranges = np.full(int(beams), float(radius))
-        return self._integrate_at((p[0], p[1]), float(p[2]), ranges, np.zeros(int(beams), bool), angles)
+        return self._integrate_at((p[0], p[1]), float(p[2]), ranges, np.zeros(int(beams), bool), angles,
+                                  route_snapshot)
 
-    def _integrate_at(self, origin, heading: float, ranges, hit, angles) -> SensedUpdate:
+    def _integrate_at(self, origin, heading: float, ranges, hit, angles, route_snapshot: bool = True
+                      ) -> SensedUpdate:
         t0 = time.perf_counter()
         up = self.grid.integrate(origin, heading, ranges, hit, angles)
         t1 = time.perf_counter()
@@ -165,7 +183,8 @@ class SensedMap:
         rcells = up.route_changed
         if self.route is not None and rcells.size:
             self.route.update_cells(rcells, ~self.grid.route_safe_at(rcells))
-            self._route_snapshot = self.route.safe_areas()
+            self._route_stale = True
+        route_boxes, route_areas = self.route_areas() if route_snapshot else (None, None)
         t4 = time.perf_counter()
         boxes, areas = self._snapshot
         timing = {"map": 1e3 * (t1 - t0), "areas": 1e3 * (t2 - t1), "snapshot": 1e3 * (t3 - t2),
@@ -173,7 +192,7 @@ class SensedMap:
         return SensedUpdate(changed=bool(cells.size), n_state_changed=int(up.state_changed.size),
                             n_safe_changed=int(cells.size), boxes=boxes, areas=areas, timing_ms=timing,
                             route_changed=bool(rcells.size) and self.route is not None,
-                            route_boxes=self._route_snapshot[0], route_areas=self._route_snapshot[1])
+                            route_boxes=route_boxes, route_areas=route_areas)
 
     def rects_still_safe(self, rects) -> np.ndarray:
         """Whether each world rectangle still lies entirely in safe cells.

@@ -60,3 +60,27 @@ def test_turns_on_the_spot_until_its_own_position_is_observed_safe():
 def test_config_errors_name_the_field(kwargs):
     with pytest.raises(ValueError, match=next(iter(kwargs))):
         SensingConfig(**kwargs)
+
+
+def test_closed_square_cell_test_matches_the_four_shifted_points():
+    """_in_ok_cells (one lookup for the four points shifted by +-1e-6 cell) against the
+    plain definition: a point is accepted when any of its four shifted points' cells is; on
+    random points, cell edges and corners, and points outside the grid (clipped)."""
+    _, ctrl = _ctrl()
+    for k in range(3):
+        ctrl.step(Observation(t=0.1 * k, pose=np.array([0.5 * k, 0.0, 0.3 * k]), velocity=np.zeros(2),
+                              scan=_wall_scan(2.0)))
+    g = ctrl.map.grid
+    rng = np.random.default_rng(5)
+    pts = np.concatenate([rng.uniform((-2.5, -3.5), (8.5, 3.5), (300, 2)),
+                          np.round(rng.uniform((-2, -3), (8, 3), (200, 2)) / 0.05) * 0.05,  # corners
+                          np.column_stack([np.round(rng.uniform(-2, 8, 100) / 0.05) * 0.05,
+                                           rng.uniform(-3, 3, 100)])])  # vertical edges
+    e = 1e-6 * g.resolution
+    for ok_at in (g.safe_at, g.route_safe_at):
+        ref = np.zeros(len(pts), dtype=bool)
+        for dx, dy in ((-e, -e), (-e, e), (e, -e), (e, e)):
+            ref |= ok_at(ctrl._cells(pts + np.array([dx, dy])))
+        got = ctrl._in_ok_cells(pts, ok_at)
+        assert np.array_equal(got, ref)
+        assert ref.any() and not ref.all()

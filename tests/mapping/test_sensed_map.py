@@ -87,3 +87,28 @@ def test_scans_give_the_rebuilds_coverage_and_replan_test():
     plain = SensedMap(room, 0.3, offset, SensedMapConfig(route=False))
     upp = plain.integrate(pose, r, hit, angles)
     assert upp.route_boxes is None and upp.route_areas is None and not upp.route_changed
+    assert plain.route_areas() == (None, None)
+
+
+def test_route_areas_on_demand_equal_the_per_scan_snapshot():
+    """route_snapshot=False: no route areas in the result, and SensedMap.route_areas() later
+    gives exactly what a map taking the snapshot at every scan returned (same boxes,
+    rectangles, edges, weights, portals); the snapshot is reused while nothing changed."""
+    room = (0.0, 0.0, 8.0, 4.0)
+    offset = (0.12, 0.0)
+    eager, lazy = SensedMap(room, 0.3, offset), SensedMap(room, 0.3, offset)
+    angles = np.linspace(-2.356, 2.356, 361)
+    boxes = [(4.0, 1.5, 4.4, 2.5), (2.5, 0.4, 2.7, 0.9)]
+    for k in range(12):
+        pose = (0.8 + 0.25 * k, 2.0 + 0.3 * math.cos(k), 0.3 * math.sin(k))
+        r, hit = _scan(pose, offset, angles, boxes, room)
+        ue = eager.integrate(pose, r, hit, angles)
+        ul = lazy.integrate(pose, r, hit, angles, route_snapshot=False)
+        assert ul.route_boxes is None and ul.route_areas is None and ul.route_changed == ue.route_changed
+        if k % 3 == 2:  # ask only now and then (as a controller does at replans)
+            b, a = lazy.route_areas()
+            assert np.array_equal(b, ue.route_boxes)
+            for name in ("rects", "edges", "weights", "portals"):
+                assert np.array_equal(getattr(a, name), getattr(ue.route_areas, name))
+            assert lazy.route_areas()[1] is a  # nothing changed since: the same snapshot
+    assert len(b) > 5
