@@ -8,62 +8,30 @@ a second process only loads it. Without a C compiler :func:`find_compiler` raise
 
 from __future__ import annotations
 
-import hashlib
-import logging
 import os
-import shutil
-import subprocess
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+from sanav_mj.native import CACHE_ENV, NoCompilerError, compile_cached, default_cache_dir, find_compiler
 
 if TYPE_CHECKING:  # pragma: no cover
     import casadi as cs
 
-#: Environment variable overriding the on-disk cache of compiled problems.
-CACHE_ENV = "SANAV_MJ_CACHE"
-
-
-def default_cache_dir() -> Path:
-    """Folder for compiled solver code: ``$SANAV_MJ_CACHE`` or ``~/.cache/sanav-mj``."""
-    env = os.environ.get(CACHE_ENV)
-    if env:
-        return Path(env).expanduser()
-    return Path.home() / ".cache" / "sanav-mj"
-
+__all__ = ["CACHE_ENV", "LOGGER", "NoCompilerError", "cached_shared_library", "compile_alpaqa_problem",
+           "default_cache_dir", "find_compiler"]
 
 #: name of the logger that reports compilation (one WARNING-level line per cache folder and
 #: process, before the first compile): with no logging configured Python prints it on stderr.
 LOGGER = "sanav_mj.control"
 
-_announced: set[str] = set()
-
-
-class NoCompilerError(RuntimeError):
-    """No C compiler to compile generated code (one line: what was looked for)."""
-
-
-def find_compiler() -> str:
-    """The C compiler to use: ``$CC`` when set (and only it), else the first of cc, gcc, clang.
-
-    Raises:
-        NoCompilerError: ``$CC`` names no executable, or none of the defaults is installed.
-    """
-    cc = os.environ.get("CC")
-    if cc:
-        if shutil.which(cc):
-            return cc
-        raise NoCompilerError(f"no C compiler: CC={cc!r} is not an executable")
-    for name in ("cc", "gcc", "clang"):
-        if shutil.which(name):
-            return name
-    raise NoCompilerError("no C compiler found (cc, gcc, clang; set CC or install gcc)")
+#: the first-compile notice (``%s``: the cache folder)
+_NOTICE = "compiling the solver code once (about 10 s, then cached in %s)"
 
 
 # -O3 for this CPU: 15-20 % faster code than -O1 on the SA-MPC problem (replay of the
 # recorded sequence), about twice the compile time (6 -> 11 s for PANOC's code, once per
 # machine thanks to the cache). -march=native makes the library specific to the processor,
-# so the cache key includes it (see _cpu_id).
+# so the cache key includes it (see sanav_mj.native.cpu_id).
 # -std=gnu89: CasADi's generated code then takes its own ``x < y ? x : y`` for fmin/fmax (its
 # pre-C99 branch) instead of calls to libm's fmin/fmax, which GCC does not inline under
 # IEEE rules; the SA-MPC functions hold about 1100 of them (J_SA's [.]_- and the ALM
@@ -84,24 +52,6 @@ _CFLAGS = (
     "-fno-math-errno",
     "-shared",
 )
-
-
-def _cpu_id() -> str:
-    """The processor model and feature flags (Linux), part of the cache key of native code."""
-    import platform
-
-    parts = [platform.machine()]
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
-            for line in fh:
-                key = line.split(":", 1)[0].strip()
-                if key in ("model name", "flags", "Features", "CPU part"):
-                    parts.append(line.strip())
-                if len(parts) >= 3:
-                    break
-    except OSError:
-        parts.append(platform.processor())
-    return "\n".join(parts)
 
 
 def compile_alpaqa_problem(
@@ -143,8 +93,9 @@ def cached_shared_library(
     """Compile generated C into ``<cache>/<prefix>_<hash>.so`` once, or return the cached library.
 
     The hash covers ``key`` (whatever identifies the generated code: serialised functions,
-    versions), the compiler flags and the processor. The library is written under a
-    temporary name and renamed, so concurrent processes never load a half-written file.
+    versions), the solver's compiler flags and the processor (see
+    :func:`sanav_mj.native.library_path`). The library is written under a temporary name and
+    renamed, so concurrent processes never load a half-written file.
 
     Args:
         prefix: file name prefix (``"alpaqa"``, ``"sqp"``).
@@ -162,29 +113,9 @@ def cached_shared_library(
 
     Raises:
         NoCompilerError: a miss and no C compiler (see :func:`find_compiler`).
-        RuntimeError: the compiler failed (its first 2000 characters of stderr).
+        CompileError: the compiler failed (its first 2000 characters of stderr; a RuntimeError).
     """
-    h = hashlib.sha256()
-    for part in (*key, " ".join(_CFLAGS), _cpu_id()):
-        h.update(part.encode())
-    root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    target = root / f"{prefix}_{h.hexdigest()[:20]}.so"
-    if target.is_file():
-        return target, False
-    compiler = find_compiler()
-    if str(root) not in _announced:
-        _announced.add(str(root))
-        logging.getLogger(LOGGER).warning(
-            "compiling the solver code once (about 10 s, then cached in %s)", root)
-    root.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=root, prefix="build_") as tmp:
-        src = generate(Path(tmp))
-        out = Path(tmp) / "lib.so"
-        proc = subprocess.run([compiler, *_CFLAGS, src, "-o", str(out), "-lm"], capture_output=True, text=True, check=False)
-        if proc.returncode != 0:
-            raise RuntimeError(f"compiling {what} failed: {proc.stderr.strip()[:2000]}")
-        os.replace(out, target)
-    return target, True
+    return compile_cached(prefix, key, generate, _CFLAGS, what, cache_dir, notice=(LOGGER, _NOTICE))
 
 
 def _generate_cse(f: cs.Function, g: cs.Function, second_order: str) -> cs.CodeGenerator:

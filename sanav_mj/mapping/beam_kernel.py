@@ -9,8 +9,9 @@ load; in NumPy every crossing is materialised first (cells near the sensor are c
 hundreds of beams of a scan).
 
 The C source below is compiled once with the system C compiler into the solver-code cache
-folder (``$SANAV_MJ_CACHE`` or ``~/.cache/sanav-mj``; the file name hashes the source and
-flags) and loaded with :mod:`ctypes`. The flags keep IEEE arithmetic as NumPy does it
+folder by :func:`sanav_mj.native.compile_cached` (``$SANAV_MJ_CACHE`` or
+``~/.cache/sanav-mj``; the file name hashes the source, flags and processor) and loaded with
+:mod:`ctypes`. The flags keep IEEE arithmetic as NumPy does it
 (``-ffp-contract=off``: no fused multiply-add, so ``base + k * inc`` rounds twice, as in
 NumPy; no ``-march=native``, no fast-math). Without a compiler, when compiling fails, or with
 ``SANAV_MJ_NO_CKERNEL=1`` in the environment, the NumPy path is used; both return the same
@@ -20,14 +21,12 @@ cells (tested).
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import os
-import shutil
-import subprocess
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from sanav_mj.native import CompileError, NoCompilerError, compile_cached
 
 #: Environment variable: set to ``1`` to use the NumPy traversal even where C compiles.
 NO_KERNEL_ENV = "SANAV_MJ_NO_CKERNEL"
@@ -83,14 +82,17 @@ _lib: ctypes.CDLL | None = None
 _tried = False
 
 
-def _cache_dir() -> Path:
-    env = os.environ.get("SANAV_MJ_CACHE")
-    return Path(env).expanduser() if env else Path.home() / ".cache" / "sanav-mj"
+def _write_source(folder: Path) -> str:
+    """Write the kernel's C source into ``folder``; its path."""
+    src = folder / "beams.c"
+    src.write_text(_SOURCE)
+    return str(src)
 
 
 def _load() -> ctypes.CDLL | None:
-    """The compiled kernel (compiled on first use, then cached), or None: no compiler, a failed
-    compile, an unwritable cache or ``SANAV_MJ_NO_CKERNEL=1``."""
+    """The compiled kernel (compiled on first use into the shared cache, see
+    :func:`sanav_mj.native.compile_cached`), or None: no compiler, a failed compile, an
+    unwritable cache or ``SANAV_MJ_NO_CKERNEL=1``."""
     global _lib, _tried
     if _tried:
         return _lib
@@ -98,25 +100,9 @@ def _load() -> ctypes.CDLL | None:
     if os.environ.get(NO_KERNEL_ENV, "") not in ("", "0"):
         return None
     try:
-        h = hashlib.sha256((_SOURCE + " ".join(_FLAGS)).encode()).hexdigest()[:20]
-        root = _cache_dir()
-        target = root / f"beams_{h}.so"
-        if not target.is_file():
-            cc = os.environ.get("CC") or next((c for c in ("cc", "gcc", "clang") if shutil.which(c)), None)
-            if cc is None or shutil.which(cc) is None:
-                return None
-            root.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryDirectory(dir=root, prefix="build_") as tmp:
-                src = Path(tmp) / "beams.c"
-                src.write_text(_SOURCE)
-                out = Path(tmp) / "lib.so"
-                proc = subprocess.run([cc, *_FLAGS, str(src), "-o", str(out), "-lm"], capture_output=True,
-                                      text=True, check=False)
-                if proc.returncode != 0:
-                    return None
-                os.replace(out, target)  # atomic: concurrent processes never load a partial file
+        target, _ = compile_cached("beams", (_SOURCE,), _write_source, _FLAGS, "the beam traversal kernel")
         lib = ctypes.CDLL(str(target))
-    except OSError:
+    except (NoCompilerError, CompileError, OSError):
         return None
     f = lib.sanav_free_cells
     f.restype = ctypes.c_int64

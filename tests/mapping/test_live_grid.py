@@ -318,3 +318,43 @@ def test_compiled_and_numpy_traversal_give_the_same_cells_and_grid():
         assert np.array_equal(grids[0].log_odds, grids[1].log_odds)
         assert np.array_equal(grids[0]._pad, grids[1]._pad) and np.array_equal(grids[0]._route, grids[1]._route)
 
+
+
+@pytest.mark.parametrize("how", ["no compiler", "switched off"])
+def test_the_traversal_falls_back_to_numpy_without_a_compiler_or_when_switched_off(how, tmp_path, monkeypatch):
+    """The kernel is compiled by sanav_mj.native into $SANAV_MJ_CACHE; with no compiler
+    (NoCompilerError inside) or SANAV_MJ_NO_CKERNEL=1 it is unavailable, nothing is written and
+    free_cells still returns the crossed cells (NumPy)."""
+    from sanav_mj.mapping import beam_kernel
+    from sanav_mj.mapping.live_grid import crossed_cells, segment_columns
+
+    monkeypatch.setattr(beam_kernel, "_lib", None)
+    monkeypatch.setattr(beam_kernel, "_tried", False)
+    monkeypatch.setenv("SANAV_MJ_CACHE", str(tmp_path / "cache"))
+    if how == "no compiler":
+        monkeypatch.setenv("CC", "/nonexistent/cc")
+    else:
+        monkeypatch.setenv(beam_kernel.NO_KERNEL_ENV, "1")
+    assert not beam_kernel.kernel_available()
+    assert not (tmp_path / "cache").exists()
+    u0, v0, u1, v1 = [0.5, 3.2], [0.5, 7.9], [8.7, 3.2], [4.1, 0.3]
+    mark = np.zeros(10 * 12, np.int8)
+    got = beam_kernel.free_cells(segment_columns(u0, v0, u1, v1, 10, 12), mark)
+    assert np.array_equal(np.sort(got), np.unique(crossed_cells(u0, v0, u1, v1, 10, 12)))
+
+
+def test_the_compiled_traversal_lands_in_the_cache_folder(tmp_path, monkeypatch):
+    """With a C compiler, the kernel is compiled once into $SANAV_MJ_CACHE as beams_<hash>.so."""
+    from sanav_mj.mapping import beam_kernel
+    from sanav_mj.native import NoCompilerError, find_compiler
+
+    try:
+        find_compiler()
+    except NoCompilerError:
+        pytest.skip("no C compiler on this machine")
+    monkeypatch.setattr(beam_kernel, "_lib", None)
+    monkeypatch.setattr(beam_kernel, "_tried", False)
+    monkeypatch.delenv(beam_kernel.NO_KERNEL_ENV, raising=False)
+    monkeypatch.setenv("SANAV_MJ_CACHE", str(tmp_path / "cache"))
+    assert beam_kernel.kernel_available()
+    assert [p.name[:6] for p in (tmp_path / "cache").iterdir()] == ["beams_"]
