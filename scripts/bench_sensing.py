@@ -12,7 +12,10 @@ free in the known-map grid (0 = the lidar map's safe cells are inside the known 
 
 ``--loop``: the closed loop instead (``run SCENARIO --sensing lidar``, seed ``--seed``), per
 step: pipeline (scan + map update + replan check and plan + solve), map update per scan,
-replan time per plan (the first included), as mean / p99 [ms]. With ``--against TREE`` (a source tree of
+replan time per plan after the first, and the pipeline minus the solve per step (the part
+outside the solver), as mean / p99 [ms]; the first plan's time and the controller's
+construction time (``prepare_ms``: the SA-MPC built before the loop; 0 for a tree
+without it) as means [ms]. With ``--against TREE`` (a source tree of
 another version of the package, e.g. ``git worktree add /tmp/base <commit>``), both versions
 run alternately, ``--repeat`` times each, in fresh processes under the same machine load,
 and the run JSONs (wall-clock fields ``*_ms`` aside) are compared:
@@ -91,8 +94,12 @@ import json, sys
 from sanav_mj.eval.episode import run_scenario
 out = run_scenario(sys.argv[1], seed=int(sys.argv[2]), sensing="lidar")
 rec = out.sensed.records
-print(json.dumps({"pipeline": list(out.episode.trace.pipeline_ms), "map": out.sensed.map_update_ms,
-                  "replan": [r.replan_ms for r in rec if r.replan is not None], "doc": out.document}))
+plans = [r.replan_ms for r in rec if r.replan is not None]
+tr = out.episode.trace
+print(json.dumps({"pipeline": list(tr.pipeline_ms), "map": out.sensed.map_update_ms,
+                  "nosolve": [p - s for p, s in zip(tr.pipeline_ms, tr.solve_ms)],
+                  "replan": plans[1:], "first": plans[:1], "prepare": [getattr(out.sensed, "prepare_ms", 0.0)],
+                  "doc": out.document}))
 """
 
 
@@ -112,11 +119,13 @@ def loop(names: list[str], seed: int, against: str | None, repeat: int) -> int:
         trees = {"old": str(Path(against).resolve()), **trees}
     print(f"load average {os.getloadavg()[0]:.2f} (start); {repeat} run(s) per version, alternating; "
           "ms as mean / p99 over all steps (scans, replans) of the runs")
-    print(f"{'scenario':10s} {'ver':3s}  {'pipeline':^15s}  {'map update':^15s}  {'replan':^15s}    plans  load")
+    print(f"{'scenario':10s} {'ver':3s}  {'pipeline':^15s}  {'map update':^15s}  {'replan':^15s}  "
+          f"{'w/o solve':^15s}  first  prep   plans  load")
     sys.stdout.flush()
     status = 0
     for name in names:
-        acc: dict[str, dict[str, list]] = {v: {"pipeline": [], "map": [], "replan": [], "load": []} for v in trees}
+        keys = ("pipeline", "map", "replan", "nosolve", "first", "prepare", "load")
+        acc: dict[str, dict[str, list]] = {v: {k: [] for k in keys} for v in trees}
         docs: dict[str, list] = {v: [] for v in trees}
         for _ in range(repeat):
             for ver, tree in trees.items():
@@ -127,7 +136,7 @@ def loop(names: list[str], seed: int, against: str | None, repeat: int) -> int:
                     print(f"bench_sensing: {ver} run of {name} failed: {proc.stderr.strip()[-500:]}", file=sys.stderr)
                     return 3
                 r = json.loads(proc.stdout.strip().splitlines()[-1])
-                for k in ("pipeline", "map", "replan"):
+                for k in ("pipeline", "map", "replan", "nosolve", "first", "prepare"):
                     acc[ver][k].extend(r[k])
                 acc[ver]["load"].append(os.getloadavg()[0])
                 docs[ver].append(_strip_ms(r["doc"]))
@@ -137,8 +146,9 @@ def loop(names: list[str], seed: int, against: str | None, repeat: int) -> int:
             def f(v):
                 return f"{np.mean(v):6.2f} / {np.percentile(v, 99):6.2f}" if len(v) else f"{'-':^15s}"
 
-            print(f"{name:10s} {ver:3s}  {f(a['pipeline'])}  {f(a['map'])}  {f(a['replan'])}  "
-                  f"{len(a['replan']) // repeat:7d}  {np.mean(a['load']):4.2f}")
+            print(f"{name:10s} {ver:3s}  {f(a['pipeline'])}  {f(a['map'])}  {f(a['replan'])}  {f(a['nosolve'])}  "
+                  f"{np.mean(a['first']):5.1f}  {np.mean(a['prepare']):5.1f}  "
+                  f"{len(a['replan']) // repeat + 1:5d}  {np.mean(a['load']):4.2f}")
         same = all(d == docs["new"][0] for v in trees for d in docs[v])
         print(f"{name:10s} run JSON (without *_ms) {'identical' if same else 'DIFFERENT'} across versions and runs")
         status = status or (0 if same else 1)

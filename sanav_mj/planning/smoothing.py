@@ -202,7 +202,13 @@ class SmoothingSpline:
 
     def __call__(self, u: np.ndarray) -> np.ndarray:
         """(K, 2) [m] points at arc-length parameters ``u`` (K,) [m] (clipped to [0, L])."""
-        first, vals = collocation(self.length, self.n_intervals, np.asarray(u, dtype=float))
+        return self.at_collocation(*collocation(self.length, self.n_intervals, np.asarray(u, dtype=float)))
+
+    def at_collocation(self, first: np.ndarray, vals: np.ndarray) -> np.ndarray:
+        """(K, 2) [m] points at parameters given by their collocation ``(first, vals)``
+        ((K,) int, (K, 4): :func:`collocation` with this spline's ``length`` and
+        ``n_intervals``), the same arithmetic as calling the spline; for evaluating several
+        splines of one knot layout at the same parameters."""
         idx = first[:, None] + _FOUR
         out = np.empty((vals.shape[0], 2))
         out[:, 0] = np.einsum("ij,ij->i", vals, self.coeffs[:, 0].take(idx))
@@ -528,10 +534,13 @@ def safe_curve(
     steps = 0
     cur_lam = lam
     weights = None
+    # every refit has the same knots: the check's collocation is computed once (an
+    # unblended curve is its spline, so curve(u_chk) is spline.at_collocation(*chk))
+    chk = collocation(problem.length, problem.n_intervals, u_chk)
     while True:
         spl = problem.solve(cur_lam, weights)
         curve = SafeCurve(spl, Blend((), blend_ramp), wp, s_nodes, seg_area, L, steps)
-        nodes = curve(u_chk)
+        nodes = spl.at_collocation(*chk)
         _, ok = corridor_assignment(corridor_rects, nodes, hint)
         if ok.all() or steps >= max_lambda_steps:
             break

@@ -166,3 +166,26 @@ def test_sensing_config_validation():
     with pytest.raises(ValueError, match="scan_turn_rate"):
         SensingConfig(scan_turn_rate=float("nan"))
     assert isinstance(lidar_controller(load_scenario("single_rect")), SensingSAMPC)
+
+
+def _without_ms(x):
+    if isinstance(x, dict):
+        return {k: _without_ms(v) for k, v in x.items() if not k.endswith("_ms")}
+    if isinstance(x, list):
+        return [_without_ms(v) for v in x]
+    return x
+
+
+def test_prebuilt_mpc_gives_the_run_of_one_built_at_the_first_plan():
+    # the SA-MPC built at construction (replace_plan + reset at the first plan) against one
+    # constructed at the first plan inside the loop: the same run document apart from timings
+    sc = load_scenario("single_rect")
+    pre = lidar_controller(sc)
+    assert pre._spare is not None and pre.prepare_ms > 0.0
+    late = lidar_controller(sc)
+    late._spare = None
+    a = run_scenario(sc, seed=0, sensing="lidar", controller_obj=pre, time_limit_s=4.0)
+    b = run_scenario(sc, seed=0, sensing="lidar", controller_obj=late, time_limit_s=4.0)
+    assert pre.mpc is not None and late.mpc is not None and pre._spare is None
+    assert _without_ms(a.document) == _without_ms(b.document)
+    assert [r.replan for r in pre.records] == [r.replan for r in late.records]

@@ -220,3 +220,15 @@ def test_adaptation_falls_back_locally_when_refits_do_not_suffice(steps):
     a, b = res.curve.blend.intervals[0]
     far = np.array([0.2 * a, b + 0.5 * (res.curve.length - b) + 0.3])
     np.testing.assert_allclose(res.curve(far), res.curve.spline(far), atol=1e-12)
+
+
+def test_spline_at_collocation_is_the_call_bit_for_bit():
+    # safe_curve evaluates its refits at one precomputed collocation: same bits as calling
+    wp = np.array([[0.0, 0.0], [2.0, 0.3], [2.5, 1.7], [4.0, 2.0]])
+    u, p = interpolate_uniform(wp, 0.1)
+    prob = SmoothingProblem(u, p, 0.4)
+    uc = np.linspace(0.0, u[-1], 57)
+    chk = collocation(prob.length, prob.n_intervals, uc)
+    for lam in (1e-3, 1e-1):
+        spl = prob.solve(lam)
+        assert np.array_equal(spl.at_collocation(*chk), spl(uc))
