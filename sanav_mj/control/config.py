@@ -187,27 +187,6 @@ class TrackingConfig:
         )
 
 
-@dataclass(frozen=True)
-class InputLimits:
-    """Resolved bounds: v in [v_min, v_max] [m/s], |w| <= w_max [rad/s], rates a_max [m/s^2], alpha_max [rad/s^2]."""
-
-    v_min: float
-    v_max: float
-    w_max: float
-    a_max: float
-    alpha_max: float
-
-    def lower(self) -> np.ndarray:
-        return np.array([self.v_min, -self.w_max])
-
-    def upper(self) -> np.ndarray:
-        return np.array([self.v_max, self.w_max])
-
-    def rate(self) -> np.ndarray:
-        """(2,) [m/s^2, rad/s^2] rate bounds."""
-        return np.array([self.a_max, self.alpha_max])
-
-
 #: values of :attr:`MPCConfig.footprint`.
 FOOTPRINT_MODES = ("disc", "discs")
 
