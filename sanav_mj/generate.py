@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -354,13 +355,20 @@ def write_scenario(seed: int, path: str | os.PathLike, config: ClutterConfig = C
     Returns:
         The absolute path written.
     """
+    return _write_with_robot(path, lambda include: generate_scenario(seed, config, include=include))
+
+
+def _write_with_robot(path: str | os.PathLike, text_of: Callable[[str], str]) -> Path:
+    """Write ``text_of(include)`` to ``path`` (parents created), ``include`` being the packaged
+    robot's path relative to the file's folder (absolute when none exists, e.g. another
+    drive); returns the absolute path written."""
     out = Path(path).expanduser().resolve()
     out.parent.mkdir(parents=True, exist_ok=True)
     try:
         include = Path(os.path.relpath(robot_model_path(), out.parent)).as_posix()
     except ValueError:
         include = str(robot_model_path())
-    out.write_text(generate_scenario(seed, config, include=include))
+    out.write_text(text_of(include))
     return out
 
 
@@ -691,11 +699,4 @@ def generate_barn_scenario(seed: int, config: BarnConfig = BarnConfig(), include
 
 def write_barn_scenario(seed: int, path: str | os.PathLike, config: BarnConfig = BarnConfig()) -> Path:
     """Write :func:`generate_barn_scenario` to ``path`` with the robot included relative to it."""
-    out = Path(path).expanduser().resolve()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        include = Path(os.path.relpath(robot_model_path(), out.parent)).as_posix()
-    except ValueError:
-        include = str(robot_model_path())
-    out.write_text(generate_barn_scenario(seed, config, include=include))
-    return out
+    return _write_with_robot(path, lambda include: generate_barn_scenario(seed, config, include=include))
