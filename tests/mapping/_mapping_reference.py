@@ -168,3 +168,17 @@ def grids(draw, max_side=40):
         i, j = rng.integers(0, ny), rng.integers(0, nx)
         occ[i:i + rng.integers(1, 12), j:j + rng.integers(1, 12)] = True
     return occ
+
+
+def room_scan(pose, angles, box, max_range):
+    """Noise-free lidar ranges (B,) [m] and hit flags (B,) from ``pose`` (x, y, yaw) inside an
+    axis-aligned room ``box`` = [x0, y0, x1, y1] [m]; beams longer than ``max_range`` return it."""
+    x, y, th = pose
+    a = th + angles
+    c, s = np.cos(a), np.sin(a)
+    with np.errstate(divide="ignore"):
+        tx = np.where(c > 0, (box[2] - x) / c, np.where(c < 0, (box[0] - x) / c, np.inf))
+        ty = np.where(s > 0, (box[3] - y) / s, np.where(s < 0, (box[1] - y) / s, np.inf))
+    t = np.minimum(tx, ty)
+    hit = t <= max_range
+    return np.where(hit, t, max_range), hit

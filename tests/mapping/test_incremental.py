@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _mapping_reference import room_scan
 
 from sanav_mj.mapping.incremental import IncrementalSafeAreas
 from sanav_mj.mapping.live_grid import LiveGrid
@@ -115,14 +116,8 @@ def test_driven_by_live_grid_scans():
     room = (0.3, 0.3, 5.7, 3.7)
     for step in range(12):
         x, y, th = 0.8 + 0.35 * step, 2.0 + 0.3 * np.sin(step), 0.2 * step
-        a = th + angles
-        c, s = np.cos(a), np.sin(a)
-        with np.errstate(divide="ignore"):
-            tx = np.where(c > 0, (room[2] - x) / c, np.where(c < 0, (room[0] - x) / c, np.inf))
-            ty = np.where(s > 0, (room[3] - y) / s, np.where(s < 0, (room[1] - y) / s, np.inf))
-        t = np.minimum(tx, ty)
-        hit = t <= 4.0
-        r = np.where(hit, t + rng.normal(0, 0.02, len(t)), 4.0)
+        ranges, hit = room_scan((x, y, th), angles, room, 4.0)
+        r = np.where(hit, ranges + rng.normal(0, 0.02, len(ranges)), 4.0)
         up = g.integrate((x, y), th, r, hit, angles)
         inc.update(~g.safe(), up.safe_changed)
         _check(inc, ~g.safe(), 1)

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from _mapping_reference import room_scan
 
 from sanav_mj.mapping.live_grid import (
     FREE,
@@ -83,18 +84,6 @@ def test_inflation_offsets_square_to_square_distance():
     assert (3, 3) not in got  # gap hypot(2, 2) * 0.05 = 0.141
     assert (0, 0) in got and len(got) == len({(-a, -b) for a, b in got} & got)
 
-
-def _room_scan(pose, angles, box, max_range):
-    """Noise-free ranges from inside an axis-aligned room [x0, x1] x [y0, y1]."""
-    x, y, th = pose
-    a = th + angles
-    c, s = np.cos(a), np.sin(a)
-    with np.errstate(divide="ignore"):
-        tx = np.where(c > 0, (box[2] - x) / c, np.where(c < 0, (box[0] - x) / c, np.inf))
-        ty = np.where(s > 0, (box[3] - y) / s, np.where(s < 0, (box[1] - y) / s, np.inf))
-    t = np.minimum(tx, ty)
-    hit = t <= max_range
-    return np.where(hit, t, max_range), hit
 
 
 def test_single_scan_states():
@@ -208,7 +197,7 @@ def test_incremental_safe_grid_equals_recomputation(seed):
         wall = rng.uniform(2.5, 5.9)
         room = (0.2, 0.2, wall, 3.8)
         pose = (rng.uniform(0.5, 2.3), rng.uniform(0.5, 3.5), rng.uniform(-np.pi, np.pi))
-        ranges, hit = _room_scan(pose, angles, room, max_range=rng.uniform(1.5, 6.0))
+        ranges, hit = room_scan(pose, angles, room, max_range=rng.uniform(1.5, 6.0))
         ranges = np.where(hit, ranges + rng.normal(0, 0.03, len(ranges)), ranges)
         s_before, safe_before = g.states(), g.safe()
         up = g.integrate(pose[:2], pose[2], ranges, hit, angles)
@@ -235,7 +224,7 @@ def test_safe_grid_is_occupancy_grid_compatible():
 
     g = LiveGrid((0, 0, 3, 3), 0.05, 0.1)
     angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
-    ranges, hit = _room_scan((1.5, 1.5, 0.0), angles, (0.3, 0.3, 2.7, 2.7), 10.0)
+    ranges, hit = room_scan((1.5, 1.5, 0.0), angles, (0.3, 0.3, 2.7, 2.7), 10.0)
     g.integrate((1.5, 1.5), 0.0, ranges, hit, angles)
     sam = build_safe_areas(g.safe_grid())
     r = sam.areas.rects
@@ -262,7 +251,7 @@ def test_log_odds_match_a_per_cell_reference_over_many_scans():
     for _ in range(20):
         room = (0.2, 0.2, rng.uniform(2.5, 5.9), 3.8)
         pose = (rng.uniform(0.5, 2.3), rng.uniform(0.5, 3.5), rng.uniform(-np.pi, np.pi))
-        ranges, hit = _room_scan(pose, angles, room, max_range=rng.uniform(1.5, 6.0))
+        ranges, hit = room_scan(pose, angles, room, max_range=rng.uniform(1.5, 6.0))
         ranges = np.where(hit, ranges + rng.normal(0, 0.03, len(ranges)), ranges)
         g.integrate(pose[:2], pose[2], ranges, hit, angles)
         a = pose[2] + angles
@@ -310,7 +299,7 @@ def test_compiled_and_numpy_traversal_give_the_same_cells_and_grid():
     for _ in range(10):
         room = (0.2, 0.2, rng.uniform(2.5, 5.9), 3.8)
         pose = (rng.uniform(0.5, 2.3), rng.uniform(0.5, 3.5), rng.uniform(-np.pi, np.pi))
-        ranges, hit = _room_scan(pose, angles, room, max_range=rng.uniform(1.5, 6.0))
+        ranges, hit = room_scan(pose, angles, room, max_range=rng.uniform(1.5, 6.0))
         ups = [g.integrate(pose[:2], pose[2], ranges, hit, angles) for g in grids]
         assert np.array_equal(np.sort(ups[0].state_changed), np.sort(ups[1].state_changed))
         assert np.array_equal(ups[0].safe_changed, ups[1].safe_changed)
