@@ -31,6 +31,7 @@ from sanav_mj.eval.bench import run_bench
 from sanav_mj.eval.robustness import run_robustness
 from sanav_mj.eval.episode import DEFAULT_MARGIN_M, Prepared, planner_config
 from sanav_mj.eval import episode as _episode
+from sanav_mj.mapping.build import RESOLUTION_RANGE_M
 from sanav_mj.mapping.safe_areas import MERGE_METHODS, SafeAreaMap
 from sanav_mj.planning import Plan, PlannerConfig
 from sanav_mj.scene import Scenario
@@ -73,10 +74,11 @@ def _scenario(scenario: ScenarioLike) -> Scenario:
 
 
 def _resolution(resolution: float) -> float:
+    lo, hi = RESOLUTION_RANGE_M
     if isinstance(resolution, bool) or not isinstance(resolution, (int, float)) or not (
-        math.isfinite(resolution) and 0.005 <= resolution <= 1.0
+        math.isfinite(resolution) and lo <= resolution <= hi
     ):
-        raise ValueError(f"resolution: expected 0.005 <= metres per cell <= 1.0, got {resolution!r}")
+        raise ValueError(f"resolution: expected {lo} <= metres per cell <= {hi}, got {resolution!r}")
     return float(resolution)
 
 

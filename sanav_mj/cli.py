@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import NoReturn
 
 from sanav_mj.control.spec import CONTROLLER_NAMES as CONTROLLERS
+from sanav_mj.mapping.build import RESOLUTION_RANGE_M
 
 
 class BadInput(Exception):
@@ -54,8 +55,9 @@ def _float_arg(name: str, positive: bool = False):
 
 def _resolution(text: str) -> float:
     value = _float_arg("--resolution", positive=True)(text)
-    if not 0.005 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"--resolution: expected 0.005 <= M <= 1.0 metres, got {text!r}")
+    lo, hi = RESOLUTION_RANGE_M
+    if not lo <= value <= hi:
+        raise argparse.ArgumentTypeError(f"--resolution: expected {lo} <= M <= {hi} metres, got {text!r}")
     return value
 
 
@@ -149,7 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"sanav-mj {_version()}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
     scenario_help = "MJCF scenario file, or the name of a built-in scenario (e.g. u_shape)"
-    resolution_help = "grid cell size [m], 0.005..1 (default: %(default)s)"
+    resolution_help = f"grid cell size [m], {RESOLUTION_RANGE_M[0]:g}..{RESOLUTION_RANGE_M[1]:g} (default: %(default)s)"
     controller_help = "controller: sa-mpc (the paper's), mpc (obstacle-penalty NMPC), dwa, dqn (default: %(default)s)"
     workers_help = "worker processes, 1..64 (default: %(default)s)"
     # (the metavars name the unit: M metres, S seconds, RAD radians, N a count)

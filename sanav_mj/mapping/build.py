@@ -11,6 +11,9 @@ from sanav_mj.mapping.occupancy import MEMORY_BUDGET_BYTES, rasterise
 from sanav_mj.mapping.safe_areas import MERGE_METHODS, SafeAreaMap, build_safe_areas
 from sanav_mj.scene import Obstacle
 
+#: [m] the cell sizes the command line (``--resolution``) and the Python API accept.
+RESOLUTION_RANGE_M = (0.005, 1.0)
+
 __all__ = ["MapConfig", "build_map"]
 
 
