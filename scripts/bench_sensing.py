@@ -98,7 +98,17 @@ ctrl = lidar_controller(sc)
 over = json.loads(sys.argv[3])
 if over:
     ctrl.config = dataclasses.replace(ctrl.config, **over)
-out = run_scenario(sc, seed=int(sys.argv[2]), sensing="lidar", controller_obj=ctrl)
+hook = None
+if sys.argv[4] == "1":  # paced: each control step starts dt after the last, as on a robot
+    import time
+    t_next = [None]
+
+    def hook(step, trace):
+        if t_next[0] is None:
+            t_next[0] = time.perf_counter()
+        t_next[0] += ctrl.dt
+        time.sleep(max(0.0, t_next[0] - time.perf_counter()))
+out = run_scenario(sc, seed=int(sys.argv[2]), sensing="lidar", controller_obj=ctrl, on_step=hook)
 rec = out.sensed.records
 tr = out.episode.trace
 first = next((k for k, r in enumerate(rec) if r.replan is not None), len(rec))
@@ -131,15 +141,17 @@ _KEYS = ("pipeline", "map", "solve", "nosolve", "replan", "plan", "plans", "defe
 
 
 def loop(names: list[str], seed: int, against: str | None, repeat: int, new_config: dict | None = None,
-         old_config: dict | None = None) -> int:
+         old_config: dict | None = None, realtime: bool = False) -> int:
     """The closed-loop per-step times of this tree (and of ``against``), printed as a table;
     ``new_config`` / ``old_config``: :class:`SensingConfig` fields replaced in each version's
-    controller (e.g. ``{"background_replan": False}``)."""
+    controller (e.g. ``{"background_replan": False}``); ``realtime``: pace the loop at the
+    control period (each step starts ``dt`` after the last, as on a robot), so a background
+    plan has the idle time of a real control period."""
     trees = {"new": (str(Path(__file__).resolve().parents[1]), new_config or {})}
     if against:
         trees = {"old": (str(Path(against).resolve()), old_config or {}), **trees}
     print(f"load average {os.getloadavg()[0]:.2f} (start); {repeat} run(s) per version, alternating; "
-          "ms as mean / p99 over all steps, scans or plans of the runs")
+          f"ms as mean / p99 over all steps, scans or plans of the runs{'; paced at real time' if realtime else ''}")
     for ver, (tree, over) in trees.items():
         print(f"  {ver}: {tree} {over or ''}")
     print(f"{'scenario':10s} {'ver':3s}  {'pipeline':^15s}  {'map update':^15s}  {'solve':^15s}  {'w/o solve':^15s}  "
@@ -152,7 +164,8 @@ def loop(names: list[str], seed: int, against: str | None, repeat: int, new_conf
         for _ in range(repeat):
             for ver, (tree, over) in trees.items():
                 env = {**os.environ, "PYTHONPATH": tree}
-                proc = subprocess.run([sys.executable, "-c", _WORKER, name, str(seed), json.dumps(over)], env=env,
+                proc = subprocess.run([sys.executable, "-c", _WORKER, name, str(seed), json.dumps(over),
+                                       "1" if realtime else "0"], env=env,
                                       cwd=tree, capture_output=True, text=True, check=False)
                 if proc.returncode != 0:
                     print(f"bench_sensing: {ver} run of {name} failed: {proc.stderr.strip()[-500:]}", file=sys.stderr)
@@ -200,10 +213,13 @@ def main(argv=None) -> int:
     p.add_argument("--new-config", nargs="*", metavar="KEY=VALUE",
                    help="with --loop: SensingConfig fields for this tree's runs, e.g. background_replan=false")
     p.add_argument("--old-config", nargs="*", metavar="KEY=VALUE", help="with --loop: the same for --against")
+    p.add_argument("--realtime", action="store_true",
+                   help="with --loop: pace each run at the control period (10 Hz), as on a robot")
     a = p.parse_args(argv)
     names = a.scenarios or list(builtin_scenarios())
     if a.loop:
-        return loop(names, a.seed, a.against, max(1, a.repeat), _overrides(a.new_config), _overrides(a.old_config))
+        return loop(names, a.seed, a.against, max(1, a.repeat), _overrides(a.new_config), _overrides(a.old_config),
+                    a.realtime)
     print(f"load average {os.getloadavg()[0]:.2f}; ms as mean / median / p99")
     print(f"{'scenario':12s} {'scans':>4s}  {'cast':>5s}  {'map update':^21s}  {'safe areas':^21s}  "
           f"{'route areas':^21s}  {'total':^21s}  {'rects':>5s}  delta_m")

@@ -48,8 +48,10 @@ update time of each scan, the replans (step, reason) and the corridor rectangles
 from __future__ import annotations
 
 import math
+import queue
 import threading
 import time
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -165,25 +167,46 @@ class _Planned:
     ms: float
 
 
-class _Background:
-    """One plan computed on a worker thread; :meth:`result` waits for it (re-raising its error)."""
+class _Worker:
+    """The background planning thread of one controller: one job at a time, submitted
+    without waiting for the thread to be scheduled (a thread started per job cost the
+    control thread up to 3 ms on the loaded machine); :meth:`result` waits for the job's
+    result (re-raising its error); :meth:`close` ends the thread."""
 
-    def __init__(self, fn, args: tuple) -> None:
-        self._out: list = [None, None]
-        self._thread = threading.Thread(target=self._run, args=(fn, args), daemon=True, name="sensing-replan")
+    def __init__(self) -> None:
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self._done: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._serve, daemon=True, name="sensing-replan")
         self._thread.start()
 
-    def _run(self, fn, args) -> None:
-        try:
-            self._out[0] = fn(*args)
-        except BaseException as exc:  # handed to the control thread at the hand-over
-            self._out[1] = exc
+    def _serve(self) -> None:
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                return
+            fn, args = job
+            try:
+                self._done.put((fn(*args), None))
+            except BaseException as exc:  # handed to the control thread at the hand-over
+                self._done.put((None, exc))
+
+    def submit(self, fn, args: tuple) -> None:
+        self._jobs.put((fn, args))
 
     def result(self):
+        out, exc = self._done.get()
+        if exc is not None:
+            raise exc
+        return out
+
+    def close(self) -> None:
+        self._jobs.put(None)
         self._thread.join()
-        if self._out[1] is not None:
-            raise self._out[1]
-        return self._out[0]
+
+    @staticmethod
+    def stop(jobs: queue.SimpleQueue) -> None:
+        """End the thread serving ``jobs`` without waiting (a controller dropped unsettled)."""
+        jobs.put(None)
 
 
 class SensingSAMPC:
@@ -256,9 +279,13 @@ class SensingSAMPC:
 
     def reset(self, pose: np.ndarray) -> None:
         """Start a new episode at ``pose`` (3,) [m, m, rad] with an empty map."""
-        if getattr(self, "_pending", None) is not None:
+        if getattr(self, "_pending", False):
             self.settle()
-        self._pending: _Background | None = None
+        self._pending = False  # a background plan was requested and not yet collected
+        if not hasattr(self, "_worker"):
+            self._worker: _Worker | None = None
+        if self.config.background_replan and self._worker is None:
+            self._start_worker()  # here, before the loop
         self.map = SensedMap(self.bounds, self.inflation, self.sensor_offset, self.config.map)
         self._areas: SafeAreas | None = None
         self._boxes = np.zeros((0, 4), dtype=np.int64)
@@ -353,22 +380,33 @@ class SensingSAMPC:
             cmd = self.mpc.step(obs)
         if request is not None:
             t0 = time.perf_counter()
-            self._pending = _Background(self._compute, request)
+            if self._worker is None:
+                self._start_worker()
+            self._worker.submit(self._compute, request)
+            self._pending = True
             replan_ms += (time.perf_counter() - t0) * 1e3
         self.records.append(StepRecord(map_ms, replanned, replan_ms, self._corridor_rects.copy(), changed,
                                        plan_ms, deferred, None if request is None else reason))
         return cmd
 
+    def _start_worker(self) -> None:
+        self._worker = _Worker()
+        weakref.finalize(self, _Worker.stop, self._worker._jobs)
+
     def _collect(self) -> _Planned | None:
         """The background plan requested at the last step (waiting for it), or None."""
-        if self._pending is None:
+        if not self._pending:
             return None
-        job, self._pending = self._pending, None
-        return job.result()
+        self._pending = False
+        return self._worker.result()
 
     def settle(self) -> None:
-        """Wait for a background plan still running (end of an episode) and drop it."""
+        """End of an episode: wait for a background plan still running, drop it, and end the
+        worker thread (a later episode starts a new one)."""
         self._collect()
+        if self._worker is not None:
+            self._worker.close()
+            self._worker = None
 
     def _replan_reason(self, changed: bool, pose: np.ndarray) -> str | None:
         if self._areas is None or not np.all(np.isfinite(pose)):

@@ -229,7 +229,7 @@ def test_deferred_plan_is_the_plan_computed_from_the_request_step():
         if rec.deferred:
             adopted[step] = ctrl.mpc.plan
         if rec.requested:
-            ctrl._pending._thread.join()  # the worker is done; the map is still that of step k
+            # the map is still that of step k (the worker may be reading it too: read-only)
             speed = max(0.0, float(trace.velocity[step][0]))
             args = ctrl._plan_inputs(np.asarray(trace.measured[step], float), speed, rec.requested)
             expected[step + 1] = ctrl._compute(*args)
