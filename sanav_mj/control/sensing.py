@@ -291,6 +291,7 @@ class SensingSAMPC:
         self._boxes = np.zeros((0, 4), dtype=np.int64)
         self.plan_boxes = self._boxes
         self._have_route = False  # route areas exist (after the first scan, when kept)
+        self._route_dirty = True  # route or route grid changed since the route was last found clear
         self._corridor_rects = np.zeros((0, 4))
         self.route: np.ndarray | None = None
         self.local_goal: np.ndarray | None = None
@@ -337,7 +338,8 @@ class SensingSAMPC:
             t0 = time.perf_counter()
             changed = False
             if self.mpc is None or not self.map.grid.safe_at(self._cells(pose[None, :2]))[0]:
-                changed = self.map.clear_footprint(pose, self.robot.footprint_radius, route_snapshot=False).changed
+                fp = self.map.clear_footprint(pose, self.robot.footprint_radius, route_snapshot=False)
+                changed, self._route_dirty = fp.changed, self._route_dirty or fp.route_changed
             k = self.config.beam_stride
             # the route areas are needed only to plan: their snapshot is taken in _compute
             up = self.map.integrate(pose, obs.scan.ranges[::k], obs.scan.hit[::k], obs.scan.angles[::k],
@@ -348,6 +350,7 @@ class SensingSAMPC:
             self._boxes = up.boxes
             self._have_route = self.map.route is not None
             self._grown = self._grown or changed
+            self._route_dirty = self._route_dirty or up.route_changed
         self._since_plan += 1
         replanned, plan_ms, deferred = None, 0.0, False
         if pending is not None:
@@ -419,8 +422,11 @@ class SensingSAMPC:
             return "initial" if safe_here or turned_out else None
         if changed and len(self._corridor_rects) and not self.map.rects_still_safe(self._corridor_rects).all():
             return "blocked"
-        if self.route is not None and self._have_route and not self._route_clear():
-            return "route"
+        if self.route is not None and self._have_route and self._route_dirty:
+            # the route can only stop being clear when it or a route cell changed
+            if not self._route_clear():
+                return "route"
+            self._route_dirty = False
         far = np.hypot(*(self.local_goal - self.goal)) > 1e-9
         if far and self._grown and self._since_plan >= self.config.replan_interval:
             return "extend"
@@ -488,6 +494,7 @@ class SensingSAMPC:
         changed since the map it was planned on) for a plan made at an earlier step."""
         self._follow(planned.plan, pose, planned.areas, planned.boxes)
         self.route = planned.route
+        self._route_dirty = True
         self.local_goal = planned.local_goal
         self._since_plan = since_plan
         self._grown = grown

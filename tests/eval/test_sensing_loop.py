@@ -285,3 +285,21 @@ def test_synchronous_replans_stay_available():
     assert sum(r.replan is not None for r in ctrl.records) >= 2
     with pytest.raises(ValueError, match="background_replan"):
         SensingConfig(background_replan=1)
+
+
+def test_route_check_skipped_only_when_neither_route_nor_route_cells_changed(tmp_path):
+    # the route is re-checked only after a scan changed a route cell or a new route came:
+    # against a controller that checks it at every step, the same replans and the same run
+    sc = _hidden_scenario(tmp_path)
+    fast = lidar_controller(sc)
+    ref = lidar_controller(sc)
+
+    def every_step(step, trace):
+        ref._route_dirty = True
+
+    a = run_scenario(sc, seed=0, yaw=0.0, sensing="lidar", controller_obj=fast)
+    b = run_scenario(sc, seed=0, yaw=0.0, sensing="lidar", controller_obj=ref, on_step=every_step)
+    reasons = [r.replan for r in fast.records]
+    assert "route" in reasons  # the hidden box blocks the first route
+    assert reasons == [r.replan for r in ref.records]
+    assert _without_ms(a.document) == _without_ms(b.document)
