@@ -10,15 +10,22 @@ free in the known-map grid (0 = the lidar map's safe cells are inside the known 
 
     PYTHONPATH=$PWD python scripts/bench_sensing.py [SCENARIO ...] [--seed N]
 
-``--loop``: the closed loop instead (``run SCENARIO --sensing lidar``, seed ``--seed``), per
-step: pipeline (scan + map update + replan check and plan + solve), map update per scan,
-replan time per plan after the first, and the pipeline minus the solve per step (the part
-outside the solver), as mean / p99 [ms]; the first plan's time and the controller's
-construction time (``prepare_ms``: the SA-MPC built before the loop; 0 for a tree
-without it) as means [ms]. With ``--against TREE`` (a source tree of
-another version of the package, e.g. ``git worktree add /tmp/base <commit>``), both versions
-run alternately, ``--repeat`` times each, in fresh processes under the same machine load,
-and the run JSONs (wall-clock fields ``*_ms`` aside) are compared:
+``--loop``: the closed loop instead (``run SCENARIO --sensing lidar``, seed ``--seed``), as
+mean / p99 [ms]: the pipeline per step (scan + map update + replan check and plan + SA-MPC
+step), the map update per scan, the SA-MPC step (the run JSON's ``solve_ms``: preparation,
+solve, acceptance) and the pipeline without it per step, the control thread's planning time
+per step that planned, handed a background plan over or requested one, and the computing
+time of each plan after the first wherever it ran; then plans per run, plans adopted from
+the background worker, the first plan's time and the controller's construction time
+(``prepare_ms``) as means. ``--components`` adds the per-step split (map update, planning,
+SA-MPC step, rest) and the fallback steps per run; ``--realtime`` paces each run at the
+control period, as on a robot (a background plan then has a real period's idle time);
+``--new-config KEY=VALUE`` / ``--old-config`` set :class:`SensingConfig` fields of each
+version's controller (e.g. ``background_replan=true``). With ``--against TREE`` (a source
+tree of another version of the package, e.g. ``git archive <commit> | tar -x -C /tmp/base``),
+both versions run alternately, ``--repeat`` times each, in fresh processes under the same
+machine load, and the run JSONs (wall-clock fields ``*_ms`` aside) are compared (exit 1 when
+runs of one version differ from each other):
 
     PYTHONPATH=$PWD python scripts/bench_sensing.py --loop u_shape v_shape complex --against /tmp/base --repeat 3
 """
@@ -124,6 +131,12 @@ print(json.dumps({"pipeline": list(tr.pipeline_ms), "map": out.sensed.map_update
                   "deferred": [sum(bool(getattr(r, "deferred", False)) for r in later)],
                   "first": [rec[first].replan_ms] if first < len(rec) else [],
                   "prepare": [getattr(out.sensed, "prepare_ms", 0.0)],
+                  # per step: map update (0 without a scan), planning on the control thread,
+                  # and the rest outside them and the SA-MPC step (lidar cast, replan check)
+                  "map_step": [r.map_ms or 0.0 for r in rec], "replan_step": [r.replan_ms for r in rec],
+                  "rest_step": [p - (r.map_ms or 0.0) - r.replan_ms - s
+                                for p, s, r in zip(tr.pipeline_ms, tr.solve_ms, rec)],
+                  "limit": [sum(s.startswith("fallback") for s in tr.status)],
                   "doc": out.document}))
 """
 
@@ -137,16 +150,18 @@ def _strip_ms(x):
     return x
 
 
-_KEYS = ("pipeline", "map", "solve", "nosolve", "replan", "plan", "plans", "deferred", "first", "prepare")
+_KEYS = ("pipeline", "map", "solve", "nosolve", "replan", "plan", "plans", "deferred", "first", "prepare",
+         "map_step", "replan_step", "rest_step", "limit")
 
 
 def loop(names: list[str], seed: int, against: str | None, repeat: int, new_config: dict | None = None,
-         old_config: dict | None = None, realtime: bool = False) -> int:
+         old_config: dict | None = None, realtime: bool = False, components: bool = False) -> int:
     """The closed-loop per-step times of this tree (and of ``against``), printed as a table;
     ``new_config`` / ``old_config``: :class:`SensingConfig` fields replaced in each version's
     controller (e.g. ``{"background_replan": False}``); ``realtime``: pace the loop at the
     control period (each step starts ``dt`` after the last, as on a robot), so a background
-    plan has the idle time of a real control period."""
+    plan has the idle time of a real control period; ``components``: also the per-step split
+    (map update, control-thread planning, SA-MPC step, rest) and the fallbacks per run."""
     trees = {"new": (str(Path(__file__).resolve().parents[1]), new_config or {})}
     if against:
         trees = {"old": (str(Path(against).resolve()), old_config or {}), **trees}
@@ -184,6 +199,16 @@ def loop(names: list[str], seed: int, against: str | None, repeat: int, new_conf
             print(f"{name:10s} {ver:3s}  {f(a['pipeline'])}  {f(a['map'])}  {f(a['solve'])}  {f(a['nosolve'])}  "
                   f"{f(a['replan'])}  {f(a['plan'])}  {np.mean(a['plans']):5.1f}  {np.mean(a['deferred']):5.1f}  "
                   f"{np.mean(a['first']):5.1f}  {np.mean(a['prepare']):4.1f}  {np.mean(a['load']):4.2f}")
+        if components:
+            for ver in trees:
+                a = acc[ver]
+
+                def g(v):
+                    return f"{np.mean(v):5.2f} / {np.percentile(v, 99):6.2f}"
+
+                print(f"{'':10s} {ver:3s}  per step:  map update {g(a['map_step'])}  replan {g(a['replan_step'])}  "
+                      f"SA-MPC step {g(a['solve'])}  rest {g(a['rest_step'])}  fallbacks/run "
+                      f"{np.mean(a['limit']):.1f}")
         repeatable = all(d == docs[v][0] for v in trees for d in docs[v])
         same = repeatable and all(docs[v][0] == docs["new"][0] for v in trees)
         print(f"{name:10s} run JSON (without *_ms): {'repeatable' if repeatable else 'NOT REPEATABLE'} within each "
@@ -213,13 +238,15 @@ def main(argv=None) -> int:
     p.add_argument("--new-config", nargs="*", metavar="KEY=VALUE",
                    help="with --loop: SensingConfig fields for this tree's runs, e.g. background_replan=false")
     p.add_argument("--old-config", nargs="*", metavar="KEY=VALUE", help="with --loop: the same for --against")
+    p.add_argument("--components", action="store_true",
+                   help="with --loop: also print the per-step split (map update, replan, SA-MPC step, rest)")
     p.add_argument("--realtime", action="store_true",
                    help="with --loop: pace each run at the control period (10 Hz), as on a robot")
     a = p.parse_args(argv)
     names = a.scenarios or list(builtin_scenarios())
     if a.loop:
         return loop(names, a.seed, a.against, max(1, a.repeat), _overrides(a.new_config), _overrides(a.old_config),
-                    a.realtime)
+                    a.realtime, a.components)
     print(f"load average {os.getloadavg()[0]:.2f}; ms as mean / median / p99")
     print(f"{'scenario':12s} {'scans':>4s}  {'cast':>5s}  {'map update':^21s}  {'safe areas':^21s}  "
           f"{'route areas':^21s}  {'total':^21s}  {'rects':>5s}  delta_m")
