@@ -31,11 +31,16 @@ def _cells_of(box: np.ndarray, origin: np.ndarray, h: float, shape: tuple[int, i
     return slice(i0, i1), slice(j0, j1)
 
 
-def _checked_run(scenario, seed: int = 0, yaw=None):
+def _checked_run(scenario, seed: int = 0, yaw=None, background: bool = False):
     """Run with a per-step check of the rectangles the MPC used; returns (outcome, ctrl, checked
-    steps, steps whose boxes were widened towards a robot position outside its box)."""
+    steps, steps whose boxes were widened towards a robot position outside its box);
+    ``background``: with ``SensingConfig.background_replan``."""
+    from dataclasses import replace
+
     sc = load_scenario(scenario) if isinstance(scenario, (str, Path)) else scenario
     ctrl = lidar_controller(sc)
+    if background:
+        ctrl.config = replace(ctrl.config, background_replan=True)
     truth = prepare(sc).grid  # the known-map grid, same inflation and cells
     checked, relaxed = [], []
 
@@ -303,3 +308,12 @@ def test_route_check_skipped_only_when_neither_route_nor_route_cells_changed(tmp
     assert "route" in reasons  # the hidden box blocks the first route
     assert reasons == [r.replan for r in ref.records]
     assert _without_ms(a.document) == _without_ms(b.document)
+
+
+def test_background_replans_use_only_observed_free_space():
+    # a plan adopted one step after it was made: its rectangles and the stage boxes are
+    # checked against the map of the step that uses them, as for synchronous plans
+    out, ctrl, checked, relaxed = _checked_run("u_shape", seed=0, background=True)
+    assert out.document["success"] and out.document["collisions"] == 0
+    assert any(r.deferred for r in ctrl.records)
+    assert len(checked) > 50 and len(relaxed) < len(checked) // 10
