@@ -465,10 +465,10 @@ class SensingSAMPC:
 
     def _compute(self, pose: np.ndarray, speed: float, reason: str, areas: SafeAreas, boxes: np.ndarray,
                  have_route: bool, moving: bool) -> _Planned | None:
-        """Route (on the route areas) and local corridor (on ``areas``) from ``pose`` with the reference starting at the measured forward ``speed``
-        [m/s] (0 before the MPC runs, ``moving`` False); None when no local plan exists.
-        Reads the map but changes nothing the control thread uses (it may run on the
-        background thread)."""
+        """Route (on the route areas) and local corridor (on ``areas``) from ``pose`` (3,)
+        [m, m, rad], the reference starting at the measured forward ``speed`` [m/s] (0 before
+        the MPC runs, ``moving`` False); None when no local plan exists. Reads the map but
+        changes nothing the control thread uses (it may run on the background thread)."""
         t0 = time.perf_counter()
         route_areas = self.map.route_areas()[1] if have_route else None
         route_plan = make_plan(route_areas, pose, self.goal, self.robot, self.planner) \
