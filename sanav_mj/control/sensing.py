@@ -32,6 +32,11 @@ brings a scan (``Observation.scan``):
    inside known free space, and the shifted plan stays feasible as long as its rectangles
    stay safe; when a scan removes one, the replan happens before the solve.
 
+With ``SensingConfig.background_replan`` the ``extend`` and ``route`` replans (the corridor
+being followed is still safe) are computed on a worker thread from the map and pose of step
+k and handed over at step k+1 (checked against that step's map first), so they cost the
+control thread only the hand-over; the run stays deterministic (the hand-over step is fixed).
+
 Before a first plan exists (at the start the cells around the robot behind the sensor are
 unknown, so the robot's own position is not yet safe) the robot turns on the spot, which
 keeps its body inside the disc it already occupies, until its position is safe.
@@ -43,7 +48,10 @@ update time of each scan, the replans (step, reason) and the corridor rectangles
 from __future__ import annotations
 
 import math
+import queue
+import threading
 import time
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -75,6 +83,16 @@ class SensingConfig:
         scan_turn_rate: [rad/s] yaw rate of the turn on the spot before the first plan, > 0.
         max_scan_turn_s: [s] give up turning after this long (the run then ends as stuck
             or timed out without a plan), > 0.
+        background_replan: ``extend`` and ``route`` replans (the corridor being followed is
+            still safe) are computed off the control thread: requested at step k from the
+            map and pose of step k, started after step k's solve, and handed over at step
+            k+1, where the control thread waits for it if it is not done, checks its
+            corridor against step k+1's map and adopts it (or drops it when a rectangle is
+            no longer safe). The hand-over step is fixed, so the run is the same whatever the
+            thread's timing. ``initial`` and ``blocked`` replans (the current corridor is no
+            longer usable) stay synchronous. Default False (every replan in the step that
+            needs it): deferring changes the runs (one step of plan latency), measured in
+            docs/benchmarks.md, "Lidar closed loop per step".
         map: the sensed map's resolution, quadtree and log-odds settings.
     """
 
@@ -82,6 +100,7 @@ class SensingConfig:
     beam_stride: int = 1
     scan_turn_rate: float = 1.0
     max_scan_turn_s: float = 8.0
+    background_replan: bool = False
     map: SensedMapConfig = field(default_factory=SensedMapConfig)
 
     def __post_init__(self) -> None:
@@ -94,6 +113,8 @@ class SensingConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"SensingConfig.{name}: expected a finite number > 0, got {v!r}")
+        if not isinstance(self.background_replan, bool):
+            raise ValueError(f"SensingConfig.background_replan: expected True or False, got {self.background_replan!r}")
 
 
 @dataclass(frozen=True)
@@ -105,10 +126,17 @@ class StepRecord:
             None without a scan.
         replan: the replan reason (``"initial"``, ``"blocked"``, ``"route"``, ``"extend"``)
             or None.
-        replan_ms: [ms] time spent planning this step (0 without a replan).
+        replan_ms: [ms] time the control thread spent on planning this step: a synchronous
+            plan, or waiting for and adopting a background plan (0 without either).
         corridor_rects: (C, 4) [m] the corridor rectangles the MPC used this step (empty
             while turning before the first plan).
         map_changed: whether the safe areas changed this step.
+        plan_ms: [ms] computing time of the plan adopted this step, wherever it ran (the
+            background thread for a deferred plan; 0 without a new plan).
+        deferred: the plan adopted this step was computed in the background (requested the
+            step before).
+        requested: the reason of a background replan requested this step (adopted, or
+            dropped, at the next step), or None.
     """
 
     map_ms: float | None
@@ -116,6 +144,69 @@ class StepRecord:
     replan_ms: float
     corridor_rects: np.ndarray
     map_changed: bool
+    plan_ms: float = 0.0
+    deferred: bool = False
+    requested: str | None = None
+
+
+@dataclass(frozen=True)
+class _Planned:
+    """A computed plan, not yet followed: what :meth:`SensingSAMPC._adopt` needs.
+
+    ``areas`` / ``boxes`` are the safe areas (and their cell boxes) it was planned on,
+    ``route`` (P, 2) [m] the route to the goal (None: none even through unknown space),
+    ``local_goal`` (2,) [m], ``reason`` the replan reason and ``ms`` [ms] the computing time.
+    """
+
+    plan: Plan
+    areas: SafeAreas
+    boxes: np.ndarray
+    route: np.ndarray | None
+    local_goal: np.ndarray
+    reason: str
+    ms: float
+
+
+class _Worker:
+    """The background planning thread of one controller: one job at a time, submitted
+    without waiting for the thread to be scheduled (a thread started per job cost the
+    control thread up to 3 ms on the loaded machine); :meth:`result` waits for the job's
+    result (re-raising its error); :meth:`close` ends the thread."""
+
+    def __init__(self) -> None:
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self._done: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._serve, daemon=True, name="sensing-replan")
+        self._thread.start()
+
+    def _serve(self) -> None:
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                return
+            fn, args = job
+            try:
+                self._done.put((fn(*args), None))
+            except BaseException as exc:  # handed to the control thread at the hand-over
+                self._done.put((None, exc))
+
+    def submit(self, fn, args: tuple) -> None:
+        self._jobs.put((fn, args))
+
+    def result(self):
+        out, exc = self._done.get()
+        if exc is not None:
+            raise exc
+        return out
+
+    def close(self) -> None:
+        self._jobs.put(None)
+        self._thread.join()
+
+    @staticmethod
+    def stop(jobs: queue.SimpleQueue) -> None:
+        """End the thread serving ``jobs`` without waiting (a controller dropped unsettled)."""
+        jobs.put(None)
 
 
 class SensingSAMPC:
@@ -188,11 +279,19 @@ class SensingSAMPC:
 
     def reset(self, pose: np.ndarray) -> None:
         """Start a new episode at ``pose`` (3,) [m, m, rad] with an empty map."""
+        if getattr(self, "_pending", False):
+            self.settle()
+        self._pending = False  # a background plan was requested and not yet collected
+        if not hasattr(self, "_worker"):
+            self._worker: _Worker | None = None
+        if self.config.background_replan and self._worker is None:
+            self._start_worker()  # here, before the loop
         self.map = SensedMap(self.bounds, self.inflation, self.sensor_offset, self.config.map)
         self._areas: SafeAreas | None = None
         self._boxes = np.zeros((0, 4), dtype=np.int64)
         self.plan_boxes = self._boxes
         self._have_route = False  # route areas exist (after the first scan, when kept)
+        self._route_dirty = True  # route or route grid changed since the route was last found clear
         self._corridor_rects = np.zeros((0, 4))
         self.route: np.ndarray | None = None
         self.local_goal: np.ndarray | None = None
@@ -228,15 +327,21 @@ class SensingSAMPC:
         """Map update, replan when needed, SA-MPC solve (see the module docstring)."""
         pose = np.asarray(obs.pose, dtype=float).reshape(3)
         self.last_scan = obs.scan
+        # a background plan requested at the last step: wait for it before the scan changes
+        # the map it reads (the hand-over step is fixed, whatever the thread's timing)
+        t_wait = time.perf_counter()
+        pending = self._collect()
+        replan_ms = (time.perf_counter() - t_wait) * 1e3 if pending is not None else 0.0
         map_ms = None
         changed = False
         if obs.scan is not None and np.all(np.isfinite(pose)):
             t0 = time.perf_counter()
             changed = False
             if self.mpc is None or not self.map.grid.safe_at(self._cells(pose[None, :2]))[0]:
-                changed = self.map.clear_footprint(pose, self.robot.footprint_radius, route_snapshot=False).changed
+                fp = self.map.clear_footprint(pose, self.robot.footprint_radius, route_snapshot=False)
+                changed, self._route_dirty = fp.changed, self._route_dirty or fp.route_changed
             k = self.config.beam_stride
-            # the route areas are needed only to plan: their snapshot is taken in _replan
+            # the route areas are needed only to plan: their snapshot is taken in _compute
             up = self.map.integrate(pose, obs.scan.ranges[::k], obs.scan.hit[::k], obs.scan.angles[::k],
                                     route_snapshot=False)
             map_ms = (time.perf_counter() - t0) * 1e3
@@ -245,22 +350,66 @@ class SensingSAMPC:
             self._boxes = up.boxes
             self._have_route = self.map.route is not None
             self._grown = self._grown or changed
+            self._route_dirty = self._route_dirty or up.route_changed
         self._since_plan += 1
-        reason = self._replan_reason(changed, pose)
-        replan_ms = 0.0
-        replanned = None
-        if reason is not None and np.all(np.isfinite(pose)):
+        replanned, plan_ms, deferred = None, 0.0, False
+        if pending is not None:
             t0 = time.perf_counter()
+            # the plan was made on the map of the last step: adopted only when every corridor
+            # rectangle is still safe after this step's scan (else dropped; the checks below
+            # then decide again)
+            rects = np.asarray(pending.areas.rects, dtype=float)[np.asarray(pending.plan.corridor, int)]
+            if self.map.rects_still_safe(rects).all():
+                self._adopt(pending, pose, since_plan=1, grown=changed)
+                replanned, plan_ms, deferred = pending.reason, pending.ms, True
+            replan_ms += (time.perf_counter() - t0) * 1e3
+        reason = self._replan_reason(changed, pose)
+        request = None
+        if reason is not None and np.all(np.isfinite(pose)):
             speed = float(obs.velocity[0]) if obs.velocity is not None and np.isfinite(obs.velocity[0]) else 0.0
-            if self._replan(pose, max(0.0, speed)):
-                replanned = reason
-            replan_ms = (time.perf_counter() - t0) * 1e3
+            args = self._plan_inputs(pose, max(0.0, speed), reason)
+            if self.config.background_replan and reason in ("extend", "route") and self.mpc is not None:
+                request = args  # started after the solve, adopted at the next step
+            else:
+                t0 = time.perf_counter()
+                planned = self._compute(*args)
+                if planned is not None:
+                    self._adopt(planned, pose)
+                    replanned, plan_ms, deferred = reason, planned.ms, False
+                replan_ms += (time.perf_counter() - t0) * 1e3
         if self.mpc is None:
             cmd = self._scan_turn(obs)
         else:
             cmd = self.mpc.step(obs)
-        self.records.append(StepRecord(map_ms, replanned, replan_ms, self._corridor_rects.copy(), changed))
+        if request is not None:
+            t0 = time.perf_counter()
+            if self._worker is None:
+                self._start_worker()
+            self._worker.submit(self._compute, request)
+            self._pending = True
+            replan_ms += (time.perf_counter() - t0) * 1e3
+        self.records.append(StepRecord(map_ms, replanned, replan_ms, self._corridor_rects.copy(), changed,
+                                       plan_ms, deferred, None if request is None else reason))
         return cmd
+
+    def _start_worker(self) -> None:
+        self._worker = _Worker()
+        weakref.finalize(self, _Worker.stop, self._worker._jobs)
+
+    def _collect(self) -> _Planned | None:
+        """The background plan requested at the last step (waiting for it), or None."""
+        if not self._pending:
+            return None
+        self._pending = False
+        return self._worker.result()
+
+    def settle(self) -> None:
+        """End of an episode: wait for a background plan still running, drop it, and end the
+        worker thread (a later episode starts a new one)."""
+        self._collect()
+        if self._worker is not None:
+            self._worker.close()
+            self._worker = None
 
     def _replan_reason(self, changed: bool, pose: np.ndarray) -> str | None:
         if self._areas is None or not np.all(np.isfinite(pose)):
@@ -273,8 +422,11 @@ class SensingSAMPC:
             return "initial" if safe_here or turned_out else None
         if changed and len(self._corridor_rects) and not self.map.rects_still_safe(self._corridor_rects).all():
             return "blocked"
-        if self.route is not None and self._have_route and not self._route_clear():
-            return "route"
+        if self.route is not None and self._have_route and self._route_dirty:
+            # the route can only stop being clear when it or a route cell changed
+            if not self._route_clear():
+                return "route"
+            self._route_dirty = False
         far = np.hypot(*(self.local_goal - self.goal)) > 1e-9
         if far and self._grown and self._since_plan >= self.config.replan_interval:
             return "extend"
@@ -306,10 +458,19 @@ class SensingSAMPC:
     def _route_clear(self) -> bool:
         return bool(self._in_ok_cells(self.route, self.map.grid.route_safe_at).all())
 
-    def _replan(self, pose: np.ndarray, speed: float = 0.0) -> bool:
-        """Plan route and local corridor from ``pose`` with the reference starting at the
-        measured forward ``speed`` [m/s]; True when the MPC follows a new plan."""
-        route_areas = self.map.route_areas()[1] if self._have_route else None
+    def _plan_inputs(self, pose: np.ndarray, speed: float, reason: str) -> tuple:
+        """Everything :meth:`_compute` reads that the control thread changes later (the map
+        itself is read only before the next scan is integrated)."""
+        return (pose.copy(), speed, reason, self._areas, self._boxes, self._have_route, self.mpc is not None)
+
+    def _compute(self, pose: np.ndarray, speed: float, reason: str, areas: SafeAreas, boxes: np.ndarray,
+                 have_route: bool, moving: bool) -> _Planned | None:
+        """Route (on the route areas) and local corridor (on ``areas``) from ``pose`` (3,)
+        [m, m, rad], the reference starting at the measured forward ``speed`` [m/s] (0 before
+        the MPC runs, ``moving`` False); None when no local plan exists. Reads the map but
+        changes nothing the control thread uses (it may run on the background thread)."""
+        t0 = time.perf_counter()
+        route_areas = self.map.route_areas()[1] if have_route else None
         route_plan = make_plan(route_areas, pose, self.goal, self.robot, self.planner) \
             if route_areas is not None else None
         if route_plan is not None and route_plan.ok and route_plan.reference is not None:
@@ -321,17 +482,22 @@ class SensingSAMPC:
             route = None  # no route even through unknown space: head for the goal's projection
         target = self._local_goal(route)
         if target is None:
-            return False
-        local = make_plan(self._areas, pose, target, self.robot, self.planner,
-                          start_speed=speed if self.mpc is not None else 0.0)
+            return None
+        local = make_plan(areas, pose, target, self.robot, self.planner, start_speed=speed if moving else 0.0)
         if not local.ok or local.reference is None or len(local.corridor) == 0:
-            return False
-        self._follow(local, pose)
-        self.route = route
-        self.local_goal = np.asarray(target, dtype=float)
-        self._since_plan = 0
-        self._grown = False
-        return True
+            return None
+        return _Planned(local, areas, boxes, route, np.asarray(target, dtype=float), reason,
+                        (time.perf_counter() - t0) * 1e3)
+
+    def _adopt(self, planned: _Planned, pose: np.ndarray, since_plan: int = 0, grown: bool = False) -> None:
+        """Follow ``planned`` from now on; ``since_plan`` [steps] and ``grown`` (the safe areas
+        changed since the map it was planned on) for a plan made at an earlier step."""
+        self._follow(planned.plan, pose, planned.areas, planned.boxes)
+        self.route = planned.route
+        self._route_dirty = True
+        self.local_goal = planned.local_goal
+        self._since_plan = since_plan
+        self._grown = grown
 
     def _local_goal(self, route: np.ndarray | None) -> np.ndarray | None:
         """The last point of the route's leading stretch in safe cells (the goal itself when
@@ -347,8 +513,7 @@ class SensingSAMPC:
         stop = first + int(np.argmin(safe[first:]))  # first unsafe sample after the safe stretch
         return route[stop - 1].copy()
 
-    def _follow(self, plan: Plan, pose: np.ndarray) -> None:
-        areas = self._areas
+    def _follow(self, plan: Plan, pose: np.ndarray, areas: SafeAreas, boxes: np.ndarray) -> None:
         u_prev = np.array([0.0, self._turn_w])
         if self.mpc is None and self._spare is None:
             self.mpc = SAMPC(self.robot, areas, plan, self.mpc_config)
@@ -364,7 +529,7 @@ class SensingSAMPC:
             self.mpc.replace_plan(areas, plan)
         self._mpc_fresh = False
         self._corridor_rects = np.asarray(areas.rects, dtype=float)[np.asarray(plan.corridor, int)]
-        self.plan_boxes = self._boxes
+        self.plan_boxes = boxes
 
     def _scan_turn(self, obs: Observation) -> Command:
         """Turn on the spot (the body stays in the disc it occupies) to see around the robot."""

@@ -456,6 +456,7 @@ def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, reso
                           progress=ReplannedRouteProgress(lambda: ctrl.route, scenario.goal),
                           on_step=hook, scan=lambda: lidar.scan(plant.data, lidar_rng),
                           scan_period_s=lcfg.period)
+    ctrl.settle()  # a background plan requested at the last step is not used
     doc = episode_json(episode, scenario=scenario.name, controller=cspec.name, seed=seed, start=start,
                        goal=scenario.goal, rects=None, mismatch=mismatch.changed(), setup_ms=0.0)
     doc["safe_area_violations"] = int(sum(outside))
