@@ -225,6 +225,11 @@ class MPCConfig(TrackingConfig):
             of every edge through a place where the circumscribed-disc map has no room
             (:func:`sanav_mj.eval.episode.planning_areas`), so the corridor keeps to passages
             where the robot can turn when they are not much longer; 0: shortest corridor.
+        footprint_refine: ``"discs"`` mode: the map's cells are refined by this integer
+            factor where the free space is narrow (:class:`sanav_mj.mapping.MapConfig`
+            ``refine``, :func:`sanav_mj.mapping.refine.refine_narrow`); 1: one grid.
+        footprint_refine_width: [m] ``"discs"`` mode with ``footprint_refine > 1``: a fine
+            cell is used where its free run along x or y is at most this long.
     """
 
     q_sa: tuple[float, ...] = (5.0, 5.0)
@@ -235,6 +240,8 @@ class MPCConfig(TrackingConfig):
     footprint_discs: int = 3
     footprint_margin: float = 0.05
     footprint_narrow_penalty: float = 2.0
+    footprint_refine: int = 1
+    footprint_refine_width: float = 0.25
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -259,6 +266,12 @@ class MPCConfig(TrackingConfig):
         fp = self.footprint_narrow_penalty
         if not (isinstance(fp, (int, float)) and math.isfinite(fp) and fp >= 0):
             raise ValueError(f"MPCConfig.footprint_narrow_penalty must be a finite number >= 0 m, got {fp!r}")
+        fr = self.footprint_refine
+        if isinstance(fr, bool) or not (isinstance(fr, int) and 1 <= fr <= 16):
+            raise ValueError(f"MPCConfig.footprint_refine must be an integer in [1, 16], got {fr!r}")
+        fw = self.footprint_refine_width
+        if isinstance(fw, bool) or not (isinstance(fw, (int, float)) and math.isfinite(fw) and fw >= 0):
+            raise ValueError(f"MPCConfig.footprint_refine_width must be a finite number >= 0 m, got {fw!r}")
 
     def tracking(self) -> TrackingConfig:
         """The core's part of this configuration (the same values)."""

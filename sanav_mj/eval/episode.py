@@ -119,6 +119,21 @@ def map_inflation(scenario: Scenario, spec: ControllerSpec = ControllerSpec()) -
     return scenario.robot.footprint_radius + DEFAULT_MARGIN_M
 
 
+def map_config(spec: ControllerSpec = ControllerSpec(), resolution: float = 0.05, merge: str = "paper") -> Any:
+    """The :class:`~sanav_mj.mapping.MapConfig` of ``spec``'s SA-MPC footprint mode at cell
+    ``resolution`` [m]: one grid (``"disc"``, or ``"discs"`` with ``footprint_refine`` 1), or
+    ``resolution`` refined locally by ``footprint_refine`` where the free space is narrower
+    than ``footprint_refine_width`` (``"discs"``; the map's cells are then
+    ``resolution / footprint_refine``)."""
+    from sanav_mj.mapping import MapConfig
+
+    mpc = spec.sa_mpc
+    if mpc.footprint == "discs" and mpc.footprint_refine > 1:
+        return MapConfig(resolution=resolution, merge=merge, refine=mpc.footprint_refine,
+                         refine_width=mpc.footprint_refine_width)
+    return MapConfig(resolution=resolution, merge=merge)
+
+
 def planning_areas(areas: SafeAreas, scenario: Scenario, spec: ControllerSpec = ControllerSpec()) -> SafeAreas:
     """The safe areas the corridor search runs on: ``areas`` itself, or in ``"discs"`` mode
     the same areas with ``footprint_narrow_penalty`` added to every edge through a place
@@ -149,13 +164,13 @@ def prepare(
         start: (3,) [m, m, rad] start pose to plan from (default: the scenario's).
         controller: the controller spec the planner is matched to (:func:`planner_config`).
     """
-    from sanav_mj.mapping import MapConfig, MapMemoryError, build_map
+    from sanav_mj.mapping import MapMemoryError, build_map
     from sanav_mj.planning import plan as make_plan
 
     scenario = spec if isinstance(spec, Scenario) else load_scenario(spec)
     inflation = map_inflation(scenario, controller)
     try:
-        m = build_map(scenario.obstacles, scenario.bounds, inflation, MapConfig(resolution=resolution, merge=merge))
+        m = build_map(scenario.obstacles, scenario.bounds, inflation, map_config(controller, resolution, merge))
     except MapMemoryError as err:  # name the file too (ScenarioError: exit 2)
         raise MapMemoryError(f"{scenario.path}: {err}") from None
     t0 = time.perf_counter()
