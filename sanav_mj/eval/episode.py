@@ -106,6 +106,19 @@ def planner_config(robot, spec: ControllerSpec = ControllerSpec()) -> Any:
     )
 
 
+def footprint_spec(controller: str = "sa-mpc", footprint: str = "disc") -> ControllerSpec:
+    """The default :class:`ControllerSpec` of ``controller`` with SA-MPC's
+    :attr:`~sanav_mj.control.config.MPCConfig.footprint` set to ``footprint`` (``"disc"``:
+    exactly ``ControllerSpec(controller)``; ``"discs"``: the other footprint settings are
+    :class:`~sanav_mj.control.config.MPCConfig`'s defaults). What ``--footprint`` selects."""
+    from dataclasses import replace
+
+    spec = ControllerSpec(controller)
+    if footprint == "disc":
+        return spec
+    return replace(spec, sa_mpc=replace(spec.sa_mpc, footprint=footprint))
+
+
 def map_inflation(scenario: Scenario, spec: ControllerSpec = ControllerSpec()) -> float:
     """[m] obstacle inflation of the map for ``spec``'s SA-MPC footprint mode: the
     circumscribed radius + :data:`DEFAULT_MARGIN_M` (``"disc"``), or the radius of the

@@ -200,3 +200,36 @@ def test_the_controller_spec_reaches_the_controller_and_the_planner():
     assert v_ref.max() == pytest.approx(0.8 * 0.5, rel=1e-3)  # the planner's cap: 0.8 of that bound
     with pytest.raises(ValueError, match="controller_spec: names controller 'sa-mpc' but controller='dwa'"):
         run_scenario("single_rect", controller="dwa", controller_spec=spec)
+
+
+def test_footprint_spec_and_map_config():
+    from dataclasses import replace
+
+    from sanav_mj.control.spec import ControllerSpec
+    from sanav_mj.eval.episode import footprint_spec, map_config
+    from sanav_mj.mapping import MapConfig
+
+    assert footprint_spec() == ControllerSpec() and footprint_spec("dwa") == ControllerSpec("dwa")
+    discs = footprint_spec("sa-mpc", "discs")
+    assert discs == replace(ControllerSpec(), sa_mpc=replace(ControllerSpec().sa_mpc, footprint="discs"))
+    assert map_config() == MapConfig() and map_config(resolution=0.1) == MapConfig(resolution=0.1)
+    refined = replace(discs, sa_mpc=replace(discs.sa_mpc, footprint_refine=2, footprint_refine_width=0.3))
+    assert map_config(refined, 0.05) == MapConfig(resolution=0.05, refine=2, refine_width=0.3)
+    # the refinement is a discs-mode setting: the disc mode ignores it
+    disc_refined = replace(ControllerSpec(), sa_mpc=replace(ControllerSpec().sa_mpc, footprint_refine=2))
+    assert map_config(disc_refined, 0.05) == MapConfig(resolution=0.05)
+
+
+def test_prepare_refines_the_map_in_discs_mode_only():
+    from dataclasses import replace
+
+    from sanav_mj.eval.episode import footprint_spec
+
+    discs = footprint_spec("sa-mpc", "discs")
+    refined = replace(discs, sa_mpc=replace(discs.sa_mpc, footprint_refine=2))
+    a, b = prepare("double_rect", controller=discs), prepare("double_rect", controller=refined)
+    assert a.grid.resolution == 0.05 and b.grid.resolution == 0.025
+    # the refined map frees a superset of the coarse map's space (each coarse cell = 2 x 2 fine cells)
+    up = np.repeat(np.repeat(a.grid.occupied, 2, axis=0), 2, axis=1)[: b.grid.shape[0], : b.grid.shape[1]]
+    assert not (~up & b.grid.occupied).any()
+    assert b.plan.ok

@@ -1,0 +1,23 @@
+"""MPCConfig's local-refinement fields of the discs footprint mode: validated on construction."""
+
+from __future__ import annotations
+
+import pytest
+
+from sanav_mj.control.config import MPCConfig
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(footprint_refine=0), "footprint_refine"), (dict(footprint_refine=17), "footprint_refine"),
+    (dict(footprint_refine=True), "footprint_refine"), (dict(footprint_refine=2.0), "footprint_refine"),
+    (dict(footprint_refine_width=-0.01), "footprint_refine_width"),
+    (dict(footprint_refine_width=float("inf")), "footprint_refine_width"),
+])
+def test_refinement_fields_are_validated(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        MPCConfig(**kwargs)
+
+
+def test_refinement_fields_accept_their_range():
+    c = MPCConfig(footprint="discs", footprint_refine=4, footprint_refine_width=0.0)
+    assert (c.footprint_refine, c.footprint_refine_width) == (4, 0.0)
