@@ -230,6 +230,10 @@ class MPCConfig(TrackingConfig):
             ``refine``, :func:`sanav_mj.mapping.refine.refine_narrow`); 1: one grid.
         footprint_refine_width: [m] ``"discs"`` mode with ``footprint_refine > 1``: a fine
             cell is used where its free run along x or y is at most this long.
+        footprint_grow: [m] ``"discs"`` mode: > 0 grows every box of the corridor chain to a
+            maximal free rectangle of the map's grid, each side by at most this much
+            (:meth:`sanav_mj.control.stages.CorridorChain.build`); 0: the safe areas as
+            they are.
     """
 
     q_sa: tuple[float, ...] = (5.0, 5.0)
@@ -242,6 +246,7 @@ class MPCConfig(TrackingConfig):
     footprint_narrow_penalty: float = 2.0
     footprint_refine: int = 1
     footprint_refine_width: float = 0.25
+    footprint_grow: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -272,6 +277,9 @@ class MPCConfig(TrackingConfig):
         fw = self.footprint_refine_width
         if isinstance(fw, bool) or not (isinstance(fw, (int, float)) and math.isfinite(fw) and fw >= 0):
             raise ValueError(f"MPCConfig.footprint_refine_width must be a finite number >= 0 m, got {fw!r}")
+        fg = self.footprint_grow
+        if isinstance(fg, bool) or not (isinstance(fg, (int, float)) and math.isfinite(fg) and 0 <= fg <= 10):
+            raise ValueError(f"MPCConfig.footprint_grow must be a number in [0, 10] m, got {fg!r}")
 
     def tracking(self) -> TrackingConfig:
         """The core's part of this configuration (the same values)."""

@@ -116,37 +116,59 @@ class CorridorChain:
         stay: (L, 4) [m] stage box when staying on member j: ``shrink(C_j)``.
         advance: (L, 4) [m] stage box when advancing onto member j: ``shrink(C_{j-1} ∩ C_j)``
             (row 0 unused).
+        area_rects: (R, 4) [m] the rectangle J_SA uses for each safe area: ``areas.rects``,
+            or, when the chain was grown, the corridor's areas grown as their members.
     """
 
     boxes: np.ndarray
     rect_pair: np.ndarray
     stay: np.ndarray
     advance: np.ndarray
+    area_rects: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.boxes.shape[0])
 
     @staticmethod
     def build(areas: SafeAreas, corridor: np.ndarray, margin: float = 0.0) -> CorridorChain:
-        """Chain of the corridor ``(C,)`` int indices into ``areas.rects``; boxes shrunk by ``margin`` [m]."""
+        """Chain of the corridor ``(C,)`` int indices into ``areas.rects``; boxes shrunk by ``margin`` [m].
+
+        When ``areas.free`` is set (:class:`~sanav_mj.mapping.grow.FreeCells` of the grid the
+        areas were cut from), every member is grown to a maximal free rectangle of that grid
+        (:func:`~sanav_mj.mapping.grow.grow_rect`, at most ``areas.free.limit`` per side): each
+        area of the corridor, and each bridge from the bridge box of the two areas. A grown
+        member holds only free cells of the grid (as safe as a safe area) and contains the
+        member it grew from, so consecutive members still overlap with positive area, by more
+        than before where the partition is a staircase of thin areas.
+        """
         rects = np.asarray(areas.rects, dtype=float)
         corridor = np.asarray(corridor, dtype=int).ravel()
         if corridor.size == 0:
             raise ValueError("plan.corridor must hold at least one safe-area index, got an empty array")
         if corridor.min() < 0 or corridor.max() >= len(rects):
             raise ValueError(f"plan.corridor indices must be in [0, {len(rects)}), got {corridor.tolist()}")
-        boxes, pairs = [rects[corridor[0]]], [(corridor[0], corridor[0])]
+        free = getattr(areas, "free", None)
+        area_rects = None
+        if free is not None:
+            from sanav_mj.mapping.grow import grow_rect
+
+            area_rects = rects.copy()
+            for a in np.unique(corridor):
+                area_rects[a] = grow_rect(free, rects[a])
+        member = rects if area_rects is None else area_rects
+        boxes, pairs = [member[corridor[0]]], [(corridor[0], corridor[0])]
         for i, j in zip(corridor[:-1], corridor[1:]):
-            boxes.append(bridge_box(rects[i], rects[j]))
+            bridge = bridge_box(rects[i], rects[j])
+            boxes.append(bridge if free is None else grow_rect(free, bridge))
             pairs.append((i, j))
-            boxes.append(rects[j])
+            boxes.append(member[j])
             pairs.append((j, j))
         boxes = np.array(boxes)
         stay = shrink_box(boxes, margin)
         adv = np.empty_like(boxes)
         adv[0] = stay[0]
         adv[1:] = shrink_box(box_intersection(boxes[:-1], boxes[1:]), margin)
-        return CorridorChain(boxes, np.array(pairs, dtype=int), stay, adv)
+        return CorridorChain(boxes, np.array(pairs, dtype=int), stay, adv, area_rects)
 
 
 def _outside_sq(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
@@ -359,7 +381,8 @@ def safe_area_params(chain: CorridorChain, rects: np.ndarray, members: tuple[int
     with priorities ``q_sa`` (slots,); unused slots inactive. When there are more areas than
     slots the first ``slots`` are used, or, with ``all_or_none``, none (every slot inactive,
     J_SA a constant): a partial set penalises a point for being in an area it leaves out,
-    which held the front disc of a footprint back from areas its hard rows allow."""
+    which held the front disc of a footprint back from areas its hard rows allow. A grown
+    chain (``chain.area_rects``) gives the grown areas instead of ``rects``."""
     ids: list[int] = []
     for pair in chain.rect_pair[members[0] : members[1] + 1]:
         for r in pair:
@@ -369,7 +392,8 @@ def safe_area_params(chain: CorridorChain, rects: np.ndarray, members: tuple[int
         ids = []
     ids = ids[:slots]
     theta = np.zeros((slots, 6))
-    theta[: len(ids), :4] = shrink_box(rects[ids], margin)
+    src = rects if chain.area_rects is None else chain.area_rects  # a grown chain: its grown areas
+    theta[: len(ids), :4] = shrink_box(src[ids], margin)
     theta[: len(ids), 4] = q_sa[: len(ids)]
     theta[: len(ids), 5] = 1.0
     theta[len(ids) :, 2:4] = 1.0  # inactive slots: any finite rectangle

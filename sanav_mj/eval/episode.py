@@ -147,6 +147,21 @@ def map_config(spec: ControllerSpec = ControllerSpec(), resolution: float = 0.05
     return MapConfig(resolution=resolution, merge=merge)
 
 
+def with_free_cells(m: Any, spec: ControllerSpec = ControllerSpec()) -> Any:
+    """The safe-area map ``m`` as it is, or in ``"discs"`` mode with ``footprint_grow > 0`` with
+    its areas carrying the grid's :class:`~sanav_mj.mapping.grow.FreeCells` (growth limit
+    ``footprint_grow``), so SA-MPC's corridor chain grows its boxes to maximal free
+    rectangles (:meth:`sanav_mj.control.stages.CorridorChain.build`)."""
+    from dataclasses import replace
+
+    mpc = spec.sa_mpc
+    if mpc.footprint != "discs" or mpc.footprint_grow == 0:
+        return m
+    from sanav_mj.mapping.grow import FreeCells
+
+    return replace(m, areas=replace(m.areas, free=FreeCells.of(m.grid, mpc.footprint_grow)))
+
+
 def planning_areas(areas: SafeAreas, scenario: Scenario, spec: ControllerSpec = ControllerSpec()) -> SafeAreas:
     """The safe areas the corridor search runs on: ``areas`` itself, or in ``"discs"`` mode
     the same areas with ``footprint_narrow_penalty`` added to every edge through a place
@@ -186,6 +201,7 @@ def prepare(
         m = build_map(scenario.obstacles, scenario.bounds, inflation, map_config(controller, resolution, merge))
     except MapMemoryError as err:  # name the file too (ScenarioError: exit 2)
         raise MapMemoryError(f"{scenario.path}: {err}") from None
+    m = with_free_cells(m, controller)
     t0 = time.perf_counter()
     pose = scenario.start if start is None else np.asarray(start, dtype=float)
     plan = make_plan(planning_areas(m.areas, scenario, controller), pose, scenario.goal, scenario.robot,

@@ -1,4 +1,4 @@
-"""MPCConfig's local-refinement fields of the discs footprint mode: validated on construction."""
+"""MPCConfig's local-refinement and growth fields of the discs footprint mode: validated on construction."""
 
 from __future__ import annotations
 
@@ -12,6 +12,8 @@ from sanav_mj.control.config import MPCConfig
     (dict(footprint_refine=True), "footprint_refine"), (dict(footprint_refine=2.0), "footprint_refine"),
     (dict(footprint_refine_width=-0.01), "footprint_refine_width"),
     (dict(footprint_refine_width=float("inf")), "footprint_refine_width"),
+    (dict(footprint_grow=-0.1), "footprint_grow"), (dict(footprint_grow=11.0), "footprint_grow"),
+    (dict(footprint_grow=True), "footprint_grow"),
 ])
 def test_refinement_fields_are_validated(kwargs, match):
     with pytest.raises(ValueError, match=match):

@@ -233,3 +233,23 @@ def test_prepare_refines_the_map_in_discs_mode_only():
     up = np.repeat(np.repeat(a.grid.occupied, 2, axis=0), 2, axis=1)[: b.grid.shape[0], : b.grid.shape[1]]
     assert not (~up & b.grid.occupied).any()
     assert b.plan.ok
+
+
+def test_free_cells_reach_the_controller_only_in_discs_mode_with_growth():
+    from dataclasses import replace
+
+    from sanav_mj.control.factory import make_controller
+    from sanav_mj.eval.episode import footprint_spec
+
+    discs = footprint_spec("sa-mpc", "discs")
+    grow = replace(discs, sa_mpc=replace(discs.sa_mpc, footprint_grow=0.5))
+    disc_grow = replace(footprint_spec(), sa_mpc=replace(footprint_spec().sa_mpc, footprint_grow=0.5))
+    assert prepare("double_rect", controller=discs).areas.free is None
+    assert prepare("double_rect", controller=disc_grow).areas.free is None
+    p = prepare("double_rect", controller=grow)
+    assert p.areas.free is not None and p.areas.free.limit == 0.5
+    ctrl = make_controller(grow, p.scenario, p.grid, p.areas, p.plan)
+    assert ctrl.chain.area_rects is not None
+    for box in ctrl.chain.boxes:  # every member is whole free cells of the map's grid
+        i0, j0, i1, j1 = p.areas.free.cells_of(box)
+        assert not p.grid.occupied[i0:i1, j0:j1].any()
