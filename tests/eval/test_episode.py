@@ -226,8 +226,10 @@ def test_prepare_refines_the_map_in_discs_mode_only():
     from sanav_mj.eval.episode import footprint_spec
 
     discs = footprint_spec("sa-mpc", "discs")
-    refined = replace(discs, sa_mpc=replace(discs.sa_mpc, footprint_refine=2))
-    a, b = prepare("double_rect", controller=discs), prepare("double_rect", controller=refined)
+    assert discs.sa_mpc.footprint_refine == 2  # the discs mode's default
+    one = replace(discs, sa_mpc=replace(discs.sa_mpc, footprint_refine=1))
+    a, b = prepare("double_rect", controller=one), prepare("double_rect", controller=discs)
+    assert prepare("double_rect").grid.resolution == 0.05
     assert a.grid.resolution == 0.05 and b.grid.resolution == 0.025
     # the refined map frees a superset of the coarse map's space (each coarse cell = 2 x 2 fine cells)
     up = np.repeat(np.repeat(a.grid.occupied, 2, axis=0), 2, axis=1)[: b.grid.shape[0], : b.grid.shape[1]]
@@ -242,9 +244,13 @@ def test_free_cells_reach_the_controller_only_in_discs_mode_with_growth():
     from sanav_mj.eval.episode import footprint_spec
 
     discs = footprint_spec("sa-mpc", "discs")
+    assert discs.sa_mpc.footprint_grow == 1.0  # the discs mode's default
+    assert prepare("double_rect", controller=discs).areas.free.limit == 1.0
     grow = replace(discs, sa_mpc=replace(discs.sa_mpc, footprint_grow=0.5))
     disc_grow = replace(footprint_spec(), sa_mpc=replace(footprint_spec().sa_mpc, footprint_grow=0.5))
-    assert prepare("double_rect", controller=discs).areas.free is None
+    off = replace(discs, sa_mpc=replace(discs.sa_mpc, footprint_grow=0.0))
+    assert prepare("double_rect", controller=off).areas.free is None
+    assert prepare("double_rect").areas.free is None
     assert prepare("double_rect", controller=disc_grow).areas.free is None
     p = prepare("double_rect", controller=grow)
     assert p.areas.free is not None and p.areas.free.limit == 0.5
