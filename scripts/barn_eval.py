@@ -141,7 +141,8 @@ def cmd_closed_loop(args) -> int:
         given = {k: v for k, v in (("footprint_discs", args.discs), ("footprint_margin", args.margin),
                                    ("footprint_narrow_penalty", args.narrow_penalty),
                                    ("footprint_refine", args.refine), ("footprint_refine_width", args.refine_width),
-                                   ("footprint_grow", args.grow)) if v is not None}
+                                   ("footprint_grow", args.grow), ("footprint_grow_tighten", args.grow_tighten))
+                 if v is not None}
         spec = ControllerSpec("sa-mpc", replace(ControllerSpec().sa_mpc, footprint="discs", **given))
         mpc = spec.sa_mpc
         args.discs, args.margin, args.refine, args.grow = (mpc.footprint_discs, mpc.footprint_margin,
@@ -185,7 +186,7 @@ def cmd_closed_loop(args) -> int:
     args.out.write_text(json.dumps(rows, indent=1))
     ok = [r for r in rows if r["success"]]
     clr = [r["min_clearance_m"] for r in rows if r["min_clearance_m"] is not None]
-    print(f"footprint {args.footprint}, discs {args.discs}, refine {args.refine}, grow {args.grow}, margin {args.margin} m, cells {args.resolution} m, mismatch {mm}: success {len(ok)}/{len(rows)}, "
+    print(f"footprint {args.footprint}, discs {args.discs}, refine {args.refine}, grow {args.grow}/{args.grow_tighten}, margin {args.margin} m, cells {args.resolution} m, mismatch {mm}: success {len(ok)}/{len(rows)}, "
           f"runs with collision {sum(r['collisions'] > 0 for r in rows)}, {dict(Counter(r['reason'] for r in rows))}, "
           f"mean time (successful) {np.mean([r['sim_time_s'] for r in ok]) if ok else float('nan'):.2f} s, "
           f"mean BARN score {np.mean([r['barn_score'] for r in rows]):.3f}, "
@@ -228,6 +229,8 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--refine-width", type=float, default=None, help="[m] discs mode, --refine > 1: narrow below this")
     c.add_argument("--grow", type=float, default=None,
                    help="[m] discs mode: grow the corridor chain's boxes to maximal free rectangles, at most this per side")
+    c.add_argument("--grow-tighten", type=float, default=None,
+                   help="[m] discs mode, --grow > 0: tighten the added room by this much more than the box margin")
     c.add_argument("--mismatch", nargs="*", default=[])
     c.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)

@@ -135,11 +135,13 @@ class CorridorChain:
 
         When ``areas.free`` is set (:class:`~sanav_mj.mapping.grow.FreeCells` of the grid the
         areas were cut from), every member is grown to a maximal free rectangle of that grid
-        (:func:`~sanav_mj.mapping.grow.grow_rect`, at most ``areas.free.limit`` per side): each
-        area of the corridor, and each bridge from the bridge box of the two areas. A grown
-        member holds only free cells of the grid (as safe as a safe area) and contains the
-        member it grew from, so consecutive members still overlap with positive area, by more
-        than before where the partition is a staircase of thin areas.
+        (:func:`~sanav_mj.mapping.grow.grow_rect`, at most ``areas.free.limit`` per side). A
+        grown member holds only free cells of the grid (as safe as a safe area) and contains
+        the member it grew from, so consecutive members still overlap with positive area, by
+        more than before where the partition is a staircase of thin areas. Its stage boxes are
+        the grown box (or intersection) shrunk by ``margin + areas.free.tighten``, per side
+        never tighter than the plain member's (shrunk by ``margin``): the room growth adds is
+        tightened by the tracking error ``tighten``, the plain chain's room is kept.
         """
         rects = np.asarray(areas.rects, dtype=float)
         corridor = np.asarray(corridor, dtype=int).ravel()
@@ -148,27 +150,39 @@ class CorridorChain:
         if corridor.min() < 0 or corridor.max() >= len(rects):
             raise ValueError(f"plan.corridor indices must be in [0, {len(rects)}), got {corridor.tolist()}")
         free = getattr(areas, "free", None)
-        area_rects = None
         if free is not None:
             from sanav_mj.mapping.grow import grow_rect
 
             area_rects = rects.copy()
-            for a in np.unique(corridor):
-                area_rects[a] = grow_rect(free, rects[a])
-        member = rects if area_rects is None else area_rects
-        boxes, pairs = [member[corridor[0]]], [(corridor[0], corridor[0])]
+        boxes, pairs = [rects[corridor[0]]], [(corridor[0], corridor[0])]
         for i, j in zip(corridor[:-1], corridor[1:]):
-            bridge = bridge_box(rects[i], rects[j])
-            boxes.append(bridge if free is None else grow_rect(free, bridge))
+            boxes.append(bridge_box(rects[i], rects[j]))
             pairs.append((i, j))
-            boxes.append(member[j])
+            boxes.append(rects[j])
             pairs.append((j, j))
         boxes = np.array(boxes)
         stay = shrink_box(boxes, margin)
         adv = np.empty_like(boxes)
         adv[0] = stay[0]
         adv[1:] = shrink_box(box_intersection(boxes[:-1], boxes[1:]), margin)
-        return CorridorChain(boxes, np.array(pairs, dtype=int), stay, adv, area_rects)
+        if free is None:
+            return CorridorChain(boxes, np.array(pairs, dtype=int), stay, adv)
+        grown = np.array([grow_rect(free, b) for b in boxes])
+        # the grown boxes shrunk by margin + tighten, but per side never tighter than the plain ones
+        # (uncapped: where that inverts a box, the plain side is the looser one)
+        inset = np.array([1.0, 1.0, -1.0, -1.0])
+        g_stay = _looser(stay, grown + (margin + free.tighten) * inset)
+        g_adv = np.empty_like(grown)
+        g_adv[0] = g_stay[0]
+        g_adv[1:] = _looser(adv[1:], box_intersection(grown[:-1], grown[1:]) + (margin + free.tighten) * inset)
+        for k in range(len(corridor)):  # J_SA's area rectangles: as their members
+            area_rects[corridor[k]] = _looser(rects[corridor[k]], grown[2 * k] + free.tighten * inset)
+        return CorridorChain(grown, np.array(pairs, dtype=int), g_stay, g_adv, area_rects)
+
+
+def _looser(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per side the looser of boxes ``a`` and ``b`` (..., 4): the smaller min, the larger max."""
+    return np.concatenate((np.minimum(a[..., :2], b[..., :2]), np.maximum(a[..., 2:], b[..., 2:])), axis=-1)
 
 
 def _outside_sq(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:

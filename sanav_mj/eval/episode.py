@@ -150,7 +150,7 @@ def map_config(spec: ControllerSpec = ControllerSpec(), resolution: float = 0.05
 def with_free_cells(m: Any, spec: ControllerSpec = ControllerSpec()) -> Any:
     """The safe-area map ``m`` as it is, or in ``"discs"`` mode with ``footprint_grow > 0`` with
     its areas carrying the grid's :class:`~sanav_mj.mapping.grow.FreeCells` (growth limit
-    ``footprint_grow``), so SA-MPC's corridor chain grows its boxes to maximal free
+    ``footprint_grow``, tightening ``footprint_grow_tighten``), so SA-MPC's corridor chain grows its boxes to maximal free
     rectangles (:meth:`sanav_mj.control.stages.CorridorChain.build`)."""
     from dataclasses import replace
 
@@ -159,7 +159,7 @@ def with_free_cells(m: Any, spec: ControllerSpec = ControllerSpec()) -> Any:
         return m
     from sanav_mj.mapping.grow import FreeCells
 
-    return replace(m, areas=replace(m.areas, free=FreeCells.of(m.grid, mpc.footprint_grow)))
+    return replace(m, areas=replace(m.areas, free=FreeCells.of(m.grid, mpc.footprint_grow, mpc.footprint_grow_tighten)))
 
 
 def planning_areas(areas: SafeAreas, scenario: Scenario, spec: ControllerSpec = ControllerSpec()) -> SafeAreas:

@@ -34,22 +34,27 @@ class FreeCells:
         resolution: [m] cell edge.
         limit: [m] how far a user of the table (the corridor chain of SA-MPC) lets a side of a
             rectangle move out (:func:`grow_rect`'s ``limit``).
+        tighten: [m] how much more than its usual margin that user shrinks the grown
+            rectangles (never inside the rectangles they grew from, shrunk as usual).
     """
 
     sat: np.ndarray
     origin: np.ndarray
     resolution: float
     limit: float = 1.0
+    tighten: float = 0.0
 
     @staticmethod
-    def of(grid: OccupancyGrid, limit: float = 1.0) -> FreeCells:
-        """The table of ``grid`` (its ``occupied`` cells), with growth ``limit`` [m] (>= 0)."""
-        if not (np.isfinite(limit) and limit >= 0):
-            raise ValueError(f"limit must be finite and >= 0 [m], got {limit!r}")
+    def of(grid: OccupancyGrid, limit: float = 1.0, tighten: float = 0.0) -> FreeCells:
+        """The table of ``grid`` (its ``occupied`` cells), with growth ``limit`` and ``tighten`` [m] (>= 0)."""
+        for name, v in (("limit", limit), ("tighten", tighten)):
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be finite and >= 0 [m], got {v!r}")
         occ = np.asarray(grid.occupied, dtype=np.int64)
         sat = np.zeros((occ.shape[0] + 1, occ.shape[1] + 1), dtype=np.int64)
         sat[1:, 1:] = occ.cumsum(axis=0).cumsum(axis=1)
-        return FreeCells(sat, np.asarray(grid.origin, dtype=float).copy(), float(grid.resolution), float(limit))
+        return FreeCells(sat, np.asarray(grid.origin, dtype=float).copy(), float(grid.resolution), float(limit),
+                         float(tighten))
 
     @property
     def shape(self) -> tuple[int, int]:

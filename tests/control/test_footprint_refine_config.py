@@ -23,3 +23,9 @@ def test_refinement_fields_are_validated(kwargs, match):
 def test_refinement_fields_accept_their_range():
     c = MPCConfig(footprint="discs", footprint_refine=4, footprint_refine_width=0.0)
     assert (c.footprint_refine, c.footprint_refine_width) == (4, 0.0)
+
+
+@pytest.mark.parametrize("value", [-0.01, 1.0, True, float("nan")])
+def test_grow_tighten_is_validated(value):
+    with pytest.raises(ValueError, match="footprint_grow_tighten"):
+        MPCConfig(footprint_grow_tighten=value)

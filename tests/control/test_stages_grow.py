@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from sanav_mj.control.stages import CorridorChain, box_intersection, safe_area_params
 from sanav_mj.mapping.grow import FreeCells
@@ -81,3 +82,28 @@ def test_growth_limit_zero_gives_the_plain_members():
     np.testing.assert_array_equal(zero.boxes, plain.boxes)
     np.testing.assert_array_equal(zero.stay, plain.stay)
     np.testing.assert_array_equal(zero.advance, plain.advance)
+
+
+def test_tightened_growth_keeps_the_plain_room_and_tightens_only_the_added_room():
+    g = staircase_grid()
+    m = build_safe_areas(g)
+    corridor = corridor_between(m.areas, (0.025, 0.025), (0.775, 0.775))
+    plain = CorridorChain.build(m.areas, corridor, 0.01)
+    loose = CorridorChain.build(replace(m.areas, free=FreeCells.of(g)), corridor, 0.01)
+    tight = CorridorChain.build(replace(m.areas, free=FreeCells.of(g, tighten=0.05)), corridor, 0.01)
+    huge = CorridorChain.build(replace(m.areas, free=FreeCells.of(g, tighten=10.0)), corridor, 0.01)
+    for c in (loose, tight, huge):
+        for box, mem in ((c.stay, c.boxes), (c.advance[1:], c.boxes[1:])):
+            assert np.all(box[:, :2] >= mem[:, :2] - 1e-12) and np.all(box[:, 2:] <= mem[:, 2:] + 1e-12)
+    for a, b in ((plain, tight), (tight, loose)):  # plain <= tight <= loose, side by side
+        for x, y in ((a.stay, b.stay), (a.advance, b.advance)):
+            assert np.all(y[:, :2] <= x[:, :2] + 1e-12) and np.all(y[:, 2:] >= x[:, 2:] - 1e-12)
+    # a tightening larger than any growth leaves exactly the plain stage boxes
+    np.testing.assert_allclose(huge.stay, plain.stay)
+    np.testing.assert_allclose(huge.advance, plain.advance)
+    # a side grown by d moves out by max(0, d - 0.05) beyond where the plain box's side is (here: shrink
+    # by 0.01 on a member at least 0.1 m wide)
+    k = int(np.argmax((loose.boxes[:, 2] - loose.boxes[:, 0]) - (plain.boxes[:, 2] - plain.boxes[:, 0])))
+    d = plain.boxes[k, 0] - loose.boxes[k, 0]
+    assert tight.stay[k, 0] == pytest.approx(min(plain.stay[k, 0], loose.boxes[k, 0] + 0.01 + 0.05))
+    assert d > 0
