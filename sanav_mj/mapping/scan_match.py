@@ -3,25 +3,32 @@
 A scan placed at a wrong pose draws the world wrong: at a yaw off by 2 deg a wall 4 m away
 lands 14 cm (3 cells) off, its free rays cut through obstacles and its returns mark free
 space occupied. A real robot therefore corrects the pose its odometry predicts by matching
-each scan against its map before adding it. This module does that in two stages, around a
-prior pose (the odometry prediction):
+each scan against its map before adding it. This module does that around a prior pose (the
+odometry prediction), in :meth:`ScanMatcher.match`:
 
-1. **Correlative search** (:meth:`ScanMatcher.match`): every yaw in ``prior +- yaw_window``
-   (step ``yaw_step``) and every whole-cell shift in ``+- xy_window`` cells is scored by the
-   sum of the likelihood field (below) at the scan's return points, nearest cell; the best
-   candidate (ties: the one closest to the prior) starts stage 2. Cost ~ candidates x
-   points lookups, vectorised.
-2. **Gauss-Newton** on the field: minimises
-   ``sum_i (1 - M(T(xi) s_i))^2 + (xi - xi_prior)^T Lambda (xi - xi_prior)`` over
-   ``xi = (x, y, yaw)``, with ``s_i`` the return points in the base frame and ``Lambda`` the
-   prior's information (``1 / prior_xy^2``, ``1 / prior_yaw^2``): in a direction the scan
-   does not constrain (a featureless corridor along its axis) the result stays at the prior.
+1. **Gauss-Newton** (point-to-line, below) from the prior; when that match fails (``poor``
+   or ``few_points``: the prior was outside its basin),
+2. **correlative search**: every yaw in ``prior +- yaw_window`` (step ``yaw_step``) and
+   every whole-cell shift in ``+- xy_window`` cells is scored by the sum of the likelihood
+   field (below) at the scan's return points, nearest cell; the best candidate (ties: the
+   one closest to the prior) starts Gauss-Newton again. Cost ~ candidates x points
+   lookups, vectorised.
 
-**Likelihood field** (:class:`LikelihoodField`): ``M(p) = 1 - exp(-S(p))``, with
-``S(p) = sum_q exp(-|p - q|^2 / (2 sigma^2))`` over the map's hit points ``q`` within
-``radius_cells`` (one point per cell that ever held a return: the mean of the returns that
-landed there, sub-cell, so a wall peaks where it is, not at cell centres up to half a cell off).
-It only grows (the worlds are static): a scan adds its new hit cells in
+**Gauss-Newton** (ICP, point-to-line): each return ``s_i`` (base frame) with its surface
+normal ``n_i`` from the scan itself (:func:`scan_points`) is paired with the nearest map
+point ``q_i`` within ``max_pair_m`` (the map keeps one point per hit cell, below), and
+``sum_i (n_i^T (T(xi) s_i - q_i))^2 / point_sigma^2 + (xi - xi_prior)^T Lambda (xi - xi_prior)``
+is minimised over ``xi = (x, y, yaw)`` (pairs re-found each iteration), ``Lambda`` the
+prior's information (``1 / prior_xy^2``, ``1 / prior_yaw^2``): in a direction the scan does
+not constrain (a featureless corridor along its axis) the result stays at the prior. An
+optional absolute measurement (``anchor``) adds a second such prior.
+
+**Map points and likelihood field** (:class:`LikelihoodField`): one point per cell that
+ever held a return, the mean of the returns that landed there (sub-cell: a wall is where
+its returns are, not at cell centres up to half a cell off; a point of a cell's first
+returns only would bias the yaw); for the correlative search ``M(p) = 1 - exp(-S(p))`` at
+the cell centres, ``S(p) = sum_q exp(-|p - q|^2 / (2 sigma^2))`` over the points ``q``
+within ``radius_cells``. It only grows (the worlds are static): a scan adds its new hit cells in
 ``O(new cells x kernel)``.
 
 **Quality** (:class:`MatchResult`): ``inliers`` (points with a map point within
@@ -32,7 +39,11 @@ when it has at least ``min_inliers`` inliers, their RMS point-to-line residual i
 ``eig_min / eig_max >= min_eig_ratio``); else ``few_points``, ``poor`` or ``ambiguous``
 (too weak in some direction); an empty field gives ``empty``. What to do
 with a scan whose match is not ok is the caller's decision
-(:class:`sanav_mj.control.sensing.SensingSAMPC` adds no such scan to the map).
+(:class:`sanav_mj.control.sensing.SensingSAMPC` uses an ambiguous match and adds no scan
+whose match is ``poor`` or ``few_points`` to the map).
+
+:meth:`ScanMatcher.cost` (truncated point-to-line cost) lets the caller test another pose
+against the match (``check``: e.g. whether the measured pose explains the scan as well).
 """
 
 from __future__ import annotations
@@ -78,7 +89,7 @@ class ScanMatchConfig:
     yaw_window: float = 0.06
     yaw_step: float = 0.01
     xy_window: int = 1
-    max_points: int = 180
+    max_points: int = 120
     iterations: int = 6
     prior_xy: float = 0.01
     prior_yaw: float = 0.02
@@ -384,7 +395,23 @@ class ScanMatcher:
         zero3 = np.zeros(3)
         if self.field.count == 0 or len(s) == 0:
             return MatchResult(prior.copy(), False, "empty", 0, len(s), zero3, zero3)
-        # 1. correlative search: (Y yaws) x (S shifts) candidates, nearest-cell field sums
+        # Gauss-Newton from the prior first (the odometry prediction is usually within its
+        # basin); the correlative search only when that fails
+        xi, status, inliers, eig, corr, rms = self._refine(prior, prior, s, normals, anchor, anchor_sigma)
+        if status in ("poor", "few_points") and len(self._dyaw) * len(self._shift) > 1:
+            xi, status, inliers, eig, corr, rms = self._refine(self._search(prior, s), prior, s, normals, anchor,
+                                                               anchor_sigma)
+        delta = math.inf
+        if check is not None:
+            chk = np.asarray(check, dtype=float).reshape(3)
+            if np.all(np.isfinite(chk)):
+                delta = self.cost(chk, s, normals) - self.cost(xi, s, normals)
+        return MatchResult(xi, status == "ok", status, inliers, len(s), eig, corr, rms, delta)
+
+    def _search(self, prior: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """Correlative search: (Y yaws) x (S shifts) candidates around ``prior``, scored by
+        nearest-cell field sums; the best (ties: closest to the prior)."""
+        c = self.config
         yaws = prior[2] + self._dyaw
         cy, sy = np.cos(yaws), np.sin(yaws)
         px = cy[:, None] * s[None, :, 0] - sy[:, None] * s[None, :, 1] + prior[0]  # (Y, P)
@@ -397,7 +424,14 @@ class ScanMatcher:
         k = best[np.argmin(dist.ravel()[best])]
         ky, ks = divmod(int(k), len(self._shift))
         xi = np.array([prior[0] + self._shift[ks, 0], prior[1] + self._shift[ks, 1], yaws[ky]])
-        # 2. point-to-line Gauss-Newton (ICP) with the prior as a regulariser
+        return xi
+
+    def _refine(self, start: np.ndarray, prior: np.ndarray, s: np.ndarray, normals: np.ndarray, anchor,
+                anchor_sigma) -> tuple[np.ndarray, str, int, np.ndarray, np.ndarray, float]:
+        """Point-to-line Gauss-Newton from ``start``, regularised towards ``prior`` (and the
+        anchor); returns pose, status, inliers, eigenvalues, correction, rms."""
+        c = self.config
+        xi = start.copy()
         lam = np.array([1.0 / c.prior_xy ** 2, 1.0 / c.prior_xy ** 2, 1.0 / c.prior_yaw ** 2])
         if anchor is not None:
             anchor = np.asarray(anchor, dtype=float).reshape(3)
@@ -430,7 +464,7 @@ class ScanMatcher:
                 H += np.diag(lam_a)
             step = -np.linalg.solve(H, g)
             xi = xi + step
-            if abs(step[0]) + abs(step[1]) < 2e-4 and abs(step[2]) < 1e-4:
+            if abs(step[0]) + abs(step[1]) < 1e-3 and abs(step[2]) < 5e-4:
                 break
         inliers = int(np.count_nonzero(inl))
         rms = float(np.sqrt(np.mean(res * res))) if inliers else math.inf
@@ -447,9 +481,4 @@ class ScanMatcher:
             status = "ambiguous"
         else:
             status = "ok"
-        delta = math.inf
-        if check is not None:
-            chk = np.asarray(check, dtype=float).reshape(3)
-            if np.all(np.isfinite(chk)):
-                delta = self.cost(chk, s, normals) - self.cost(xi, s, normals)
-        return MatchResult(xi, status == "ok", status, inliers, len(s), eig, corr, rms, delta)
+        return xi, status, inliers, eig, corr, rms
