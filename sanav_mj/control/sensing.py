@@ -130,6 +130,18 @@ class SensingConfig:
                                                   for v in self.pose_bound)):
             raise ValueError(f"SensingConfig.pose_bound: expected two finite numbers >= 0 [m, rad], "
                              f"got {self.pose_bound!r}")
+        for name in ("meas_sigma0", "meas_floor"):
+            v = getattr(self, name)
+            if not (len(v) == 2 and all(isinstance(x, (int, float)) and math.isfinite(x) and x > 0 for x in v)):
+                raise ValueError(f"SensingConfig.{name}: expected two finite numbers > 0 [m, rad], got {v!r}")
+        if not (isinstance(self.meas_forget, (int, float)) and 0 <= self.meas_forget <= 1):
+            raise ValueError(f"SensingConfig.meas_forget: expected a number in [0, 1], got {self.meas_forget!r}")
+        if not isinstance(self.consistent_chi2, (int, float)) or math.isnan(self.consistent_chi2):
+            raise ValueError(f"SensingConfig.consistent_chi2: expected a number (-inf: never keep the measured "
+                             f"pose), got {self.consistent_chi2!r}")
+        if self.footprint is not None and not isinstance(self.footprint, Footprint):
+            raise ValueError(f"SensingConfig.footprint: expected a sanav_mj.footprint.Footprint or None, "
+                             f"got {type(self.footprint).__name__}")
         if isinstance(self.beam_stride, bool) or not isinstance(self.beam_stride, int) or self.beam_stride < 1:
             raise ValueError(f"SensingConfig.beam_stride: expected an integer >= 1, got {self.beam_stride!r}")
         for name in ("scan_turn_rate", "max_scan_turn_s"):

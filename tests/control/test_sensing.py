@@ -70,7 +70,10 @@ def test_turns_on_the_spot_until_its_own_position_is_observed_safe():
 
 
 @pytest.mark.parametrize("kwargs", [{"replan_interval": 0}, {"beam_stride": 0}, {"scan_turn_rate": -1.0},
-                                    {"max_scan_turn_s": float("inf")}, {"replan_interval": True}])
+                                    {"max_scan_turn_s": float("inf")}, {"replan_interval": True},
+                                    {"controller_pose": "true"}, {"pose_bound": (0.03, -1.0)},
+                                    {"meas_sigma0": (0.0, 0.05)}, {"meas_forget": 2.0},
+                                    {"consistent_chi2": float("nan")}, {"footprint": (0.1, 0.2)}])
 def test_config_errors_name_the_field(kwargs):
     with pytest.raises(ValueError, match=next(iter(kwargs))):
         SensingConfig(**kwargs)
