@@ -80,9 +80,13 @@ class SensingConfig:
         localise: estimate the pose from odometry and the scans (see "Localisation" in the
             class docstring) and place each scan at that estimate; False: place each scan at
             the measured pose (noise included), as before.
-        controller_pose: ``"estimate"``: the SA-MPC, the planner and the map all use the
-            estimated pose; ``"measured"``: the SA-MPC and planner use the measured pose
-            (only the map uses the estimate).
+        controller_pose: the pose of the SA-MPC's state feedback: ``"measured"`` (default)
+            or ``"estimate"``. Map, own-cell checks and replanning use the estimate either
+            way. Measured on the envelope's four all-at-once corners with lidar (160 runs):
+            ``"measured"`` 159 / 160 to the goal, ``"estimate"`` 152 / 160 (0 collisions
+            both; 322 against 809 steps outside the safe areas): the estimate's error is
+            small (about 1 cm, 6 mrad rms) but correlated from step to step, the measured
+            pose's white noise averages out in the feedback.
         skip_unmatched: with ``localise``, a scan whose match failed (``poor``: residuals
             too large, or ``few_points``) is not added to the map (static worlds: a skipped
             scan removes no observed free space and adds none). An ``ambiguous`` match is
@@ -110,7 +114,7 @@ class SensingConfig:
     max_scan_turn_s: float = 8.0
     map: SensedMapConfig = field(default_factory=SensedMapConfig)
     localise: bool = True
-    controller_pose: str = "estimate"
+    controller_pose: str = "measured"
     skip_unmatched: bool = True
     footprint: Footprint | None = None
     pose_bound: tuple[float, float] = (0.03, 0.02)
@@ -315,7 +319,7 @@ class SensingSAMPC:
         pose = self._localise(obs)
         loc_ms = (time.perf_counter() - t_loc) * 1e3
         if self.config.localise and self.config.controller_pose == "estimate":
-            obs = replace(obs, pose=pose)
+            obs = replace(obs, pose=pose)  # else the SA-MPC's feedback keeps the measured pose
         self.last_scan = obs.scan
         map_ms = None
         changed = False
