@@ -106,8 +106,11 @@ class SensingConfig:
         consistent_chi2: the measured pose is kept as the estimate when the match is ``ok``
             (every direction constrained) and the measured pose's scan cost exceeds the
             match's by at most this (:attr:`MatchResult.check_delta`; 11.34: the 99 % point
-            of chi-square with 3 degrees of freedom). Not on an ``ambiguous`` match: a weakly
-            constrained direction lets a pose 2 deg off pass (measured: complex, seed 0).
+            of chi-square with 3 degrees of freedom). On an ``ambiguous`` match only while
+            the learnt measurement noise is below ``precise_meas``: a weakly constrained
+            direction lets a pose 2 deg off pass (measured: complex, seed 0).
+        precise_meas: ([m], [rad]) learnt measurement noise below which the measured pose
+            may be kept on an ambiguous match (an exact measurement in a sparse world).
         odometry_sigma: ([m], [rad]) standard deviation of the odometry prediction's error
             per control step (measured 0.007 rad rms on complex, seed 0), weighing prediction
             against measurement when a scan gives no match.
@@ -128,6 +131,7 @@ class SensingConfig:
     meas_forget: float = 0.05
     consistent_chi2: float = 11.34
     odometry_sigma: tuple[float, float] = (0.005, 0.007)
+    precise_meas: tuple[float, float] = (0.01, 0.01)
 
     def __post_init__(self) -> None:
         if isinstance(self.replan_interval, bool) or not isinstance(self.replan_interval, int) \
@@ -140,7 +144,7 @@ class SensingConfig:
                                                   for v in self.pose_bound)):
             raise ValueError(f"SensingConfig.pose_bound: expected two finite numbers >= 0 [m, rad], "
                              f"got {self.pose_bound!r}")
-        for name in ("meas_sigma0", "meas_floor", "odometry_sigma"):
+        for name in ("meas_sigma0", "meas_floor", "odometry_sigma", "precise_meas"):
             v = getattr(self, name)
             if not (len(v) == 2 and all(isinstance(x, (int, float)) and math.isfinite(x) and x > 0 for x in v)):
                 raise ValueError(f"SensingConfig.{name}: expected two finite numbers > 0 [m, rad], got {v!r}")
@@ -205,16 +209,18 @@ class SensingSAMPC:
     :meth:`reset` (the start pose, as the known-map mode plans from it). The measured pose
     (``Observation.pose``, with the ``--mismatch`` noise) enters each match as an absolute
     prior (:meth:`SensedMap.match` ``anchor``) whose standard deviation is learnt online
-    from the step-to-step changes of its deviation from the matched pose (a drift of the
-    map frame changes slowly, white measurement noise does not; exponential average,
-    ``meas_forget``, floored at ``meas_floor``; the controller is not told the noise): an
-    exact measurement pins the estimate (and so the map) to the world, a noisy one only
-    slowly pulls the map frame back from drift; without a match the prediction and the
+    from the measured displacement between steps minus the odometry's (variance
+    ``2 var(noise) + var(odometry error)``; a running mean with ``meas_sigma0`` as two
+    samples, then an exponential average of weight ``meas_forget``; floored at
+    ``meas_floor``; the controller is not told the noise): an exact measurement pins the
+    estimate (and so the map) to the world, a noisy one only slowly pulls the map frame
+    back from drift; without a match the prediction and the
     measurement are blended by their variances (``odometry_sigma`` against the learnt one).
-    When the match is ``ok`` and the measured pose explains the scan as well (the scan's cost
-    at it exceeds the match's by at most ``consistent_chi2``), the measured pose is kept as
-    the estimate (status ``"measured"``): with an exact measurement the map is built as
-    without localisation.
+    When the match is ``ok`` (or ambiguous while the learnt noise is below
+    ``precise_meas``) and the measured pose explains the scan as well (the scan's cost at it
+    exceeds the match's by at most ``consistent_chi2``), the measured pose is kept as the
+    estimate (status ``"measured"``): with an exact measurement the map is built as without
+    localisation.
 
     Attributes:
         name: ``"sa-mpc"``; dt: [s] control period; needs_ranges: False.
@@ -283,7 +289,8 @@ class SensingSAMPC:
         self._odo: tuple[float, np.ndarray] | None = None  # (t, velocity) of the last step
         self._add_scan = True
         self._meas_var = np.square(np.asarray(self.config.meas_sigma0, dtype=float))  # [m^2, rad^2]
-        self._last_dev: np.ndarray | None = None  # measured - matched pose at the last step
+        self._last_meas: np.ndarray | None = None  # the measured pose of the last step
+        self._meas_n = 0  # samples of the measurement noise so far
         self.match_log: list[tuple[str, np.ndarray]] = []
         self._areas: SafeAreas | None = None
         self._boxes = np.zeros((0, 4), dtype=np.int64)
@@ -372,6 +379,7 @@ class SensingSAMPC:
             self.match_log.append(("none", np.asarray(obs.pose, dtype=float).reshape(3).copy()))
             return np.asarray(obs.pose, dtype=float).reshape(3)
         est = self.estimate.copy()
+        odo = None  # odometry displacement since the last step (3,) [m, m, rad]
         vel = np.asarray(obs.velocity, dtype=float).reshape(-1) if obs.velocity is not None else None
         if vel is not None and vel.shape == (2,) and np.all(np.isfinite(vel)):
             if self._odo is not None:
@@ -381,7 +389,8 @@ class SensingSAMPC:
                 dt = float(obs.t) - self._odo[0]
                 v, w = vel
                 th_mid = est[2] + 0.5 * w * dt
-                est = est + np.array([v * dt * math.cos(th_mid), v * dt * math.sin(th_mid), w * dt])
+                odo = np.array([v * dt * math.cos(th_mid), v * dt * math.sin(th_mid), w * dt])
+                est = est + odo
             self._odo = (float(obs.t), vel)
         meas = np.asarray(obs.pose, dtype=float).reshape(3)
         have_meas = bool(np.all(np.isfinite(meas)))
@@ -397,7 +406,8 @@ class SensingSAMPC:
                 # ambiguous: the directions the scan constrains are matched, the others stay
                 # at the prediction (the prior's regularisation); that is the best estimate
                 est, matched = res.pose, True
-                if res.ok and res.check_delta <= self.config.consistent_chi2:
+                precise = bool(np.all(sig <= np.asarray(self.config.precise_meas)))
+                if (res.ok or precise) and res.check_delta <= self.config.consistent_chi2:
                     # the measured pose explains the scan as well as the match: keep it
                     est, status = meas.copy(), "measured"
             elif status != "empty":
@@ -411,18 +421,23 @@ class SensingSAMPC:
                 k = np.array([so[0] ** 2, so[0] ** 2, so[1] ** 2])
                 k = k / (k + self._meas_var[[0, 0, 1]])
                 est = est + k * d
-            elif self._last_dev is not None:
-                # the measurement noise, learnt online (the controller is not told it): from
-                # the step-to-step change of the measurement's deviation from the matched
-                # pose (a drift of the map frame changes slowly, white noise does not:
-                # var(change) = 2 var(noise)); exponential average, floored
-                a = self.config.meas_forget
-                c = d - self._last_dev
+            if odo is not None and self._last_meas is not None:
+                # the measurement noise, learnt online (the controller is not told it): the
+                # measured displacement minus the odometry's is n_k - n_(k-1) - e_k (n: white
+                # measurement noise, e: odometry error), of variance 2 var(n) + var(e);
+                # exponential average, floored. Independent of the estimate and the map.
+                c = meas - self._last_meas - odo
                 c[2] = (c[2] + math.pi) % (2.0 * math.pi) - math.pi
-                new_var = np.array([0.25 * (c[0] ** 2 + c[1] ** 2), 0.5 * c[2] ** 2])
+                so = self.config.odometry_sigma
+                new_var = np.array([0.25 * (c[0] ** 2 + c[1] ** 2) - 0.5 * so[0] ** 2,
+                                    0.5 * c[2] ** 2 - 0.5 * so[1] ** 2])
+                # running mean (meas_sigma0 counting as 2 samples) until it weighs less than
+                # meas_forget, exponential average after that
+                self._meas_n += 1
+                a = max(self.config.meas_forget, 1.0 / (self._meas_n + 2))
                 self._meas_var = np.maximum((1 - a) * self._meas_var + a * new_var,
                                             np.square(self.config.meas_floor))
-            self._last_dev = d if matched else None
+            self._last_meas = meas.copy()
         est[2] = (est[2] + math.pi) % (2.0 * math.pi) - math.pi
         self.estimate = est
         self.match_log.append((status, est.copy()))
