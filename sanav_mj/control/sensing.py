@@ -83,7 +83,7 @@ class SensingConfig:
         controller_pose: the pose of the SA-MPC's state feedback: ``"estimate"`` (default)
             or ``"measured"``. Map, own-cell checks and replanning use the estimate either
             way. Measured on the envelope's four all-at-once corners with lidar (160 runs,
-            this version): ``"estimate"`` 153 / 160 to the goal and 0 collisions,
+            commit f77bb07): ``"estimate"`` 153 / 160 to the goal and 0 collisions,
             ``"measured"`` 156 / 160 with 3 collisions (complex 2, u_shape 1: feedback from a
             pose 2 deg off the one the corridor was planned from); an earlier version of the
             localiser gave 152 / 160 and 159 / 160, both 0 collisions.

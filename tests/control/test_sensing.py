@@ -44,13 +44,13 @@ def test_scan_is_placed_at_the_measured_pose(dx):
 
 def test_localising_starts_at_the_reset_pose():
     """With localisation the first scan is placed at the pose given to reset (the start),
-    not at a measured pose 1 m off (whose assumed noise, 5 cm, weighs little against the
-    1 cm prior)."""
+    not at a measured pose 1 m off: with nothing to match, prediction and measurement are
+    blended by their variances (odometry 5 mm against the initially assumed 5 cm)."""
     _, ctrl = _ctrl()
     ctrl.reset(np.zeros(3))
     ctrl.step(Observation(t=0.0, pose=np.array([1.0, 0.0, 0.0]), velocity=np.zeros(2), scan=_wall_scan(2.0)))
     assert ctrl.match_log[0][0] == "empty"
-    assert abs(ctrl.estimate[0]) < 0.05  # the blend moved it by 1 m * 0.01^2 / (0.01^2 + 0.05^2)
+    assert abs(ctrl.estimate[0]) < 0.05  # the blend moved it by 1 m * 0.005^2 / (0.005^2 + 0.05^2)
     first = np.argwhere(ctrl.map.grid.states() == OCCUPIED)
     assert abs(np.median(first[:, 1]) - np.floor((ctrl.estimate[0] + 2.12 + 2.0) / 0.05)) <= 1
 
