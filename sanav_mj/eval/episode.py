@@ -448,6 +448,7 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
     the known-map mode's inflation (footprint radius + :data:`DEFAULT_MARGIN_M`), the lidar
     offset of the robot file, the planner matched to the MPC, the grid ``resolution`` [m]."""
     from sanav_mj.control.sensing import SensingConfig, SensingSAMPC
+    from sanav_mj.footprint import robot_footprint
     from sanav_mj.mapping.sensed_map import SensedMapConfig
     from sanav_mj.sim.lidar import lidar_config
 
@@ -456,7 +457,8 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
     spec = cspec.with_solve_budget(mismatch.solve_budget_ms)
     return SensingSAMPC(scenario.robot, scenario.bounds, scenario.goal, inflation, lcfg.offset,
                         spec.sa_mpc, planner_config(scenario.robot, spec),
-                        SensingConfig(map=SensedMapConfig(resolution=resolution)))
+                        SensingConfig(map=SensedMapConfig(resolution=resolution),
+                                      footprint=robot_footprint(scenario.model)))
 
 
 def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, resolution: float,
