@@ -34,7 +34,13 @@ class _Parser(argparse.ArgumentParser):
     """argparse with one-line errors and exit code 2."""
 
     def error(self, message: str) -> NoReturn:  # noqa: D401 - argparse API
-        raise BadInput(f"{self.prog}: {message}")
+        # argparse prefixes a type error with "argument NAME: "; our type errors already start
+        # with the argument's name, so keep it once ("--seed: expected ...")
+        m = re.match(r"argument ([^:]+): (.*)$", message, re.S)
+        if m and m.group(2).startswith(m.group(1) + ":"):
+            message = m.group(2)
+        prog = self.prog[len("sanav-mj "):] if self.prog.startswith("sanav-mj ") else self.prog
+        raise BadInput(f"{prog}: {message}" if prog != "sanav-mj" else message)
 
 
 def _float_arg(name: str, positive: bool = False):

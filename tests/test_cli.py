@@ -623,3 +623,16 @@ def test_demo_passes_the_footprint(tmp_path, capsys, monkeypatch):
     for flag in ([], ["--footprint", "discs"]):
         assert _run(["demo", "--no-rrd", "--out", str(tmp_path)] + flag, capsys)[0] == 0
     assert seen == ["disc", "discs"]
+
+
+@pytest.mark.parametrize("argv,name", [
+    (["run", "single_rect", "--seed", "x"], "--seed"),
+    (["run", "single_rect", "--resolution", "5"], "--resolution"),
+    (["bench", "single_rect", "--runs", "0"], "--runs"),
+])
+def test_argument_error_names_the_argument_once(argv, name, capsys):
+    # argparse's "argument NAME: " prefix and our own "NAME: " gave "--seed: --seed: ..."
+    code, _, err = _run(argv, capsys)
+    assert code == 2
+    assert err.count(name) == 1, err
+    assert err.startswith(f"sanav-mj: error: {argv[0]}: {name}: expected"), err
