@@ -34,6 +34,7 @@ NO_KERNEL_ENV = "SANAV_MJ_NO_CKERNEL"
 _SOURCE = r"""
 #include <math.h>
 #include <stdint.h>
+#include <stdlib.h>
 
 /* Cells crossed by B segments in major/minor form (see sanav_mj/mapping/beam_kernel.py).
    Column k of segment b (k = 0 .. n[b]-1) holds the cells of its entry and exit minor
@@ -74,6 +75,104 @@ int64_t sanav_free_cells(int64_t B, const double *base, const double *inc, const
     }
     return m;
 }
+
+/* Add d[i] (+-1) to the counts pad[] at every kernel offset around cells[i] (grid flat
+   indices, nx columns; pad is the grid padded by r cells on every side, pw columns).
+   Writes to out the grid flat indices, sorted, whose count went from zero to non-zero or
+   back over the whole call (a cell that leaves zero and comes back is not listed); returns
+   their number. seen (padded size, all 0) and list (padded size) are scratch; seen is left
+   all 0. */
+static int cmp_i64(const void *a, const void *b)
+{
+    const int64_t x = *(const int64_t *)a, y = *(const int64_t *)b;
+    return (x > y) - (x < y);
+}
+
+static int64_t spread(int64_t n, const int64_t *cells, const int8_t *d, int64_t ny, int64_t nx, int64_t r,
+                      int64_t pw, int64_t K, const int64_t *koff, int32_t *pad, int8_t *seen, int64_t *list,
+                      int64_t *out)
+{
+    int64_t L = 0;
+    for (int64_t i = 0; i < n; ++i) {
+        const int64_t centre = (cells[i] / nx + r) * pw + cells[i] % nx + r;
+        const int32_t di = d[i];
+        for (int64_t k = 0; k < K; ++k) {
+            const int64_t idx = centre + koff[k];
+            if (!seen[idx]) { seen[idx] = (int8_t)(1 + (pad[idx] == 0)); list[L++] = idx; }
+            pad[idx] += di;
+        }
+    }
+    int64_t m = 0;
+    for (int64_t l = 0; l < L; ++l) {
+        const int64_t idx = list[l];
+        const int was_zero = seen[idx] == 2;
+        seen[idx] = 0;
+        if (was_zero != (pad[idx] == 0)) {
+            const int64_t pr = idx / pw - r, pc = idx % pw - r;
+            if (pr >= 0 && pr < ny && pc >= 0 && pc < nx) out[m++] = pr * nx + pc;
+        }
+    }
+    qsort(out, (size_t)m, sizeof(int64_t), cmp_i64);
+    return m;
+}
+
+/* The log-odds update of the T distinct touched cells (grid flat indices) and the counts
+   kept around them, as LiveGrid._commit does it in NumPy (float32 arithmetic throughout):
+   new = clamp(old + delta[mark], l_min, l_max), the hit floor raised to hit_floor where
+   mark == 2 and applied (max), mark reset to 0; states (L <= free_thresh: free,
+   L >= occ_thresh: occupied); the count of non-free cells spread where the free state
+   flipped, the count of route-blocking cells (occupied, or ever hit) where that flipped.
+   par = {l_free, l_occ, l_min, l_max, free_thresh, occ_thresh, hit_floor} (float32).
+   Outputs: state_out (cells whose state changed, in touched order), safe_out / route_out
+   (sorted grid cells whose count crossed zero); n_out = {states, safe, route}.
+   Scratch: cells_tmp (T), d_tmp (T), seen and list (padded size). */
+void sanav_commit(int64_t T, const int64_t *touched, int8_t *mark, float *lo, float *floor_, const float *par,
+                  int64_t has_floor, int64_t ny, int64_t nx, int64_t r, int64_t pw, int64_t K, const int64_t *koff,
+                  int32_t *pad, int32_t *route, int64_t *state_out, int64_t *safe_out, int64_t *route_out,
+                  int64_t *n_out, int64_t *cells_tmp, int8_t *d_tmp, int8_t *seen, int64_t *list)
+{
+    const float delta[3] = {0.0f, par[0], par[1]};
+    const float l_min = par[2], l_max = par[3], ft = par[4], ot = par[5], hf = par[6];
+    int64_t ns = 0, nr = 0;
+    for (int64_t t = 0; t < T; ++t) {
+        const int64_t c = touched[t];
+        const int m = mark[c];
+        const float old = lo[c];
+        float v = old + delta[m];
+        if (v < l_min) v = l_min;
+        if (v > l_max) v = l_max;
+        int hit_old = 0, hit_new = 0;
+        if (has_floor) {
+            float f = floor_[c];
+            hit_old = f == hf;
+            if (m == 2) { f = hf; floor_[c] = hf; }
+            hit_new = f == hf;
+            if (v < f) v = f;
+        }
+        mark[c] = 0;
+        lo[c] = v;
+        const int s_old = (old <= ft) + 2 * (old >= ot);
+        const int s_new = (v <= ft) + 2 * (v >= ot);
+        if (s_old != s_new) {
+            state_out[ns] = c;
+            const int free_old = s_old == 1, free_new = s_new == 1;
+            if (free_old != free_new) { cells_tmp[ns] = c; d_tmp[ns] = (int8_t)(free_new ? -1 : 1); }
+            else cells_tmp[ns] = -1;
+            ++ns;
+        }
+        const int rb_old = s_old == 2 || hit_old, rb_new = s_new == 2 || hit_new;
+        if (rb_old != rb_new) { route_out[nr] = c; d_tmp[T + nr] = (int8_t)(rb_new ? 1 : -1); ++nr; }
+    }
+    /* compact the free flips (in state order) into the front of cells_tmp / d_tmp */
+    int64_t nf = 0;
+    for (int64_t i = 0; i < ns; ++i)
+        if (cells_tmp[i] >= 0) { cells_tmp[nf] = cells_tmp[i]; d_tmp[nf] = d_tmp[i]; ++nf; }
+    n_out[0] = ns;
+    n_out[1] = spread(nf, cells_tmp, d_tmp, ny, nx, r, pw, K, koff, pad, seen, list, safe_out);
+    /* the route cells go through cells_tmp as well (safe_out is done with it) */
+    for (int64_t i = 0; i < nr; ++i) { cells_tmp[i] = route_out[i]; d_tmp[i] = d_tmp[T + i]; }
+    n_out[2] = spread(nr, cells_tmp, d_tmp, ny, nx, r, pw, K, koff, route, seen, list, route_out);
+}
 """
 
 _FLAGS = ("-O2", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off", "-fno-fast-math")
@@ -107,6 +206,9 @@ def _load() -> ctypes.CDLL | None:
     f = lib.sanav_free_cells
     f.restype = ctypes.c_int64
     f.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 10 + [ctypes.c_int64] + [ctypes.c_void_p] * 2
+    g = lib.sanav_commit
+    g.restype = None
+    g.argtypes = ([ctypes.c_int64] + [ctypes.c_void_p] * 5 + [ctypes.c_int64] * 6 + [ctypes.c_void_p] * 11)
     _lib = lib
     return _lib
 
@@ -185,3 +287,84 @@ def expand_columns(seg: dict) -> np.ndarray:
     flat = major + entry * ms
     two = entry != exit_
     return np.concatenate([flat, major[two] + exit_[two] * ms[two]]).astype(np.int64)
+
+
+class CommitScratch:
+    """Work arrays of :func:`commit_cells` for one grid, kept between scans (grown on demand).
+
+    Args:
+        padded_size: cells of the count arrays (the grid padded by the kernel radius).
+    """
+
+    def __init__(self, padded_size: int) -> None:
+        self.seen = np.zeros(int(padded_size), dtype=np.int8)  # all 0 between calls
+        self.padded_size = int(padded_size)
+        self.list = np.empty(0, dtype=np.int64)
+        self.out = np.empty(0, dtype=np.int64)  # state_out | cells_tmp | safe_out | route_out
+        self.d = np.empty(0, dtype=np.int8)
+        self.n = np.zeros(3, dtype=np.int64)
+
+    def reserve(self, touched: int, spread: int) -> None:
+        """Make room for ``touched`` cells and ``spread`` (<= padded size) count updates."""
+        if len(self.list) < spread:
+            self.list = np.empty(spread, dtype=np.int64)
+        need = 2 * touched + 2 * spread
+        if len(self.out) < need:
+            self.out = np.empty(need, dtype=np.int64)
+        if len(self.d) < 2 * touched:
+            self.d = np.empty(2 * touched, dtype=np.int8)
+
+
+def commit_cells(touched: np.ndarray, mark: np.ndarray, log_odds: np.ndarray, floor: np.ndarray,
+                 params: np.ndarray, has_floor: bool, shape: tuple[int, int], r: int, koff: np.ndarray,
+                 pad: np.ndarray, route: np.ndarray, scratch: CommitScratch
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The log-odds update and count spreading of :meth:`LiveGrid._commit
+    <sanav_mj.mapping.live_grid.LiveGrid._commit>` in one compiled call, or None without the
+    kernel (the caller then runs the NumPy reference).
+
+    Args:
+        touched: (T,) int64 distinct flat grid indices to update.
+        mark: (ny * nx,) int8, 1 (crossed) or 2 (hit) on ``touched``; reset to 0 there.
+        log_odds, floor: (ny * nx,) float32 log-odds and per-cell lower clamp, updated in place.
+        params: (7,) float32 ``l_free, l_occ, l_min, l_max, free_thresh, occ_thresh, hit_floor``.
+        has_floor: apply ``hit_floor`` (False: plain clamping).
+        shape: (ny, nx) grid shape.
+        r: padding [cells] of the count arrays (the kernel radius).
+        koff: (K,) int64 kernel offsets in padded flat indices.
+        pad, route: ((ny + 2r) * (nx + 2r),) int32 counts of non-free and of route-blocking
+            cells within the kernel, updated in place.
+        scratch: work arrays for this grid.
+
+    Returns:
+        (state_changed, safe_changed, route_changed) int64 flat indices as
+        :class:`~sanav_mj.mapping.live_grid.MapUpdate` holds them (the first in ``touched``
+        order, the others sorted), or None when the compiled kernel is not available.
+    """
+    lib = _load()
+    if lib is None:
+        return None
+    ny, nx = shape
+    T = len(touched)
+    for name, a, dt in (("touched", touched, np.int64), ("mark", mark, np.int8), ("log_odds", log_odds, np.float32),
+                        ("floor", floor, np.float32), ("params", params, np.float32), ("koff", koff, np.int64),
+                        ("pad", pad, np.int32), ("route", route, np.int32)):
+        if a.dtype != dt or not a.flags.c_contiguous:
+            raise ValueError(f"commit_cells: {name} must be a contiguous {np.dtype(dt)} array, got {a.dtype}")
+    if len(pad) != scratch.padded_size or len(route) != scratch.padded_size:
+        raise ValueError(f"commit_cells: pad and route must have {scratch.padded_size} cells, got "
+                         f"{len(pad)}, {len(route)}")
+    spread = min(T * len(koff), scratch.padded_size)
+    scratch.reserve(T, spread)
+    out = scratch.out
+    state_out = out[:T]
+    cells_tmp = out[T:2 * T]
+    safe_out = out[2 * T:2 * T + spread]
+    route_out = out[2 * T + spread:2 * T + 2 * spread]
+    n = scratch.n
+    lib.sanav_commit(T, touched.ctypes.data, mark.ctypes.data, log_odds.ctypes.data, floor.ctypes.data,
+                     params.ctypes.data, int(has_floor), ny, nx, r, nx + 2 * r, len(koff), koff.ctypes.data,
+                     pad.ctypes.data, route.ctypes.data, state_out.ctypes.data, safe_out.ctypes.data,
+                     route_out.ctypes.data, n.ctypes.data, cells_tmp.ctypes.data, scratch.d.ctypes.data,
+                     scratch.seen.ctypes.data, scratch.list.ctypes.data)
+    return state_out[:n[0]].copy(), safe_out[:n[1]].copy(), route_out[:n[2]].copy()

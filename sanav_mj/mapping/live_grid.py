@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sanav_mj.mapping.beam_kernel import expand_columns, free_cells
+from sanav_mj.mapping.beam_kernel import CommitScratch, commit_cells, expand_columns, free_cells
 from sanav_mj.mapping.occupancy import OccupancyGrid, grid_shape
 
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
@@ -322,8 +322,14 @@ class LiveGrid:
         self._mark = np.zeros(ny * nx, dtype=np.int8)
         self._stamp = np.zeros(ny * nx, dtype=np.int64)  # scratch of the NumPy traversal
         self._use_kernel = True  # the compiled traversal when available (False: NumPy, for tests)
+        self._use_commit_kernel = True  # the compiled log-odds commit when available (False: NumPy)
         self._floor = np.full(ny * nx, config.l_min, dtype=np.float32)  # per-cell lower clamp
         self._delta = np.array([0.0, config.l_free, config.l_occ], dtype=np.float32)
+        # the compiled commit's parameters, float32 as NumPy compares float32 cells with them
+        hf = config.l_min if config.hit_floor is None else config.hit_floor
+        self._params = np.array([config.l_free, config.l_occ, config.l_min, config.l_max, config.free_thresh,
+                                 config.occ_thresh, hf], dtype=np.float32)
+        self._scratch = CommitScratch(len(self._pad))
 
     @property
     def blocked(self) -> np.ndarray:
@@ -468,7 +474,19 @@ class LiveGrid:
         occ = (ei * nx + ej)[ein]
         extra = np.unique(occ[mark[occ] == 0])  # return cells no beam crossed
         mark[occ] = 2  # a cell hit in this scan counts as hit, not crossed
-        touched = np.concatenate([free, extra])
+        return self._commit(np.concatenate([free, extra]), occ)
+
+    def _commit(self, touched: np.ndarray, occ: np.ndarray) -> MapUpdate:
+        """Apply the log-odds increments ``mark`` selects (1 crossed, 2 hit) to the distinct
+        ``touched`` cells (``occ``: the hit cells, repeats allowed), reset ``mark`` there and
+        update the safe and route counts."""
+        mark = self._mark
+        if self._use_kernel and self._use_commit_kernel:  # compiled: one pass, no temporaries
+            got = commit_cells(touched, mark, self.log_odds.reshape(-1), self._floor, self._params,
+                               self.config.hit_floor is not None, self.shape, self._r, self._koff, self._pad,
+                               self._route, self._scratch)
+            if got is not None:
+                return MapUpdate(*got)
         lo = self.log_odds.reshape(-1)
         old = lo[touched]
         c = self.config
