@@ -36,16 +36,28 @@ _SOURCE = r"""
 #include <stdint.h>
 #include <stdlib.h>
 
+/* floor(x) without a libm call (no SSE4.1 rounding instruction at the portable flags): the
+   same value for every finite |x| < 2^62 (a -0.0 result compares and converts as 0.0). */
+static inline double floor_exact(double x)
+{
+    if (!(fabs(x) < 4.0e18)) return floor(x);  /* huge, infinite or NaN: the library's */
+    const double t = (double)(int64_t)x;  /* rounds toward zero: exact below 2^62 */
+    return t > x ? t - 1.0 : t;
+}
+
 /* Cells crossed by B segments in major/minor form (see sanav_mj/mapping/beam_kernel.py).
    Column k of segment b (k = 0 .. n[b]-1) holds the cells of its entry and exit minor
    coordinates; exit = floor(base + k * inc) clamped to [lo, hi], the last exit = fb1, the
    first entry = fb0. Flat cell = major0 + k * major_step + minor * minor_stride. Each cell
    not yet marked is marked 1 and appended to out; returns the number appended, or -1 when
-   a cell falls outside [0, size) (a caller's error: segments must be clipped to the grid). */
+   a cell falls outside [0, size) (a caller's error: segments must be clipped to the grid).
+   With skip_lo (else NULL), cells whose skip_lo value equals skip_at are neither marked nor
+   appended (LiveGrid: free cells saturated at l_min, which one more crossing leaves as they are). */
 int64_t sanav_free_cells(int64_t B, const double *base, const double *inc, const double *lo,
                          const double *hi, const double *fb0, const double *fb1, const int64_t *n,
                          const int64_t *major0, const int64_t *major_step,
-                         const int64_t *minor_stride, int64_t size, int8_t *mark, int64_t *out)
+                         const int64_t *minor_stride, int64_t size, int8_t *mark, int64_t *out,
+                         const float *skip_lo, float skip_at)
 {
     int64_t m = 0;
     for (int64_t b = 0; b < B; ++b) {
@@ -57,18 +69,18 @@ int64_t sanav_free_cells(int64_t B, const double *base, const double *inc, const
                 ex = fb1[b];
             } else {
                 double t = (double)k * inc[b];
-                ex = floor(base[b] + t);
+                ex = floor_exact(base[b] + t);
                 if (ex < lo[b]) ex = lo[b];
                 if (ex > hi[b]) ex = hi[b];
             }
             const int64_t major = major0[b] + k * major_step[b];
             int64_t c = major + (int64_t)entry * minor_stride[b];
             if (c < 0 || c >= size) return -1;
-            if (!mark[c]) { mark[c] = 1; out[m++] = c; }
+            if (!mark[c] && !(skip_lo && skip_lo[c] == skip_at)) { mark[c] = 1; out[m++] = c; }
             if (ex != entry) {
                 c = major + (int64_t)ex * minor_stride[b];
                 if (c < 0 || c >= size) return -1;
-                if (!mark[c]) { mark[c] = 1; out[m++] = c; }
+                if (!mark[c] && !(skip_lo && skip_lo[c] == skip_at)) { mark[c] = 1; out[m++] = c; }
             }
             entry = ex;
         }
@@ -205,7 +217,8 @@ def _load() -> ctypes.CDLL | None:
         return None
     f = lib.sanav_free_cells
     f.restype = ctypes.c_int64
-    f.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 10 + [ctypes.c_int64] + [ctypes.c_void_p] * 2
+    f.argtypes = ([ctypes.c_int64] + [ctypes.c_void_p] * 10 + [ctypes.c_int64] + [ctypes.c_void_p] * 3
+                  + [ctypes.c_float])
     g = lib.sanav_commit
     g.restype = None
     g.argtypes = ([ctypes.c_int64] + [ctypes.c_void_p] * 5 + [ctypes.c_int64] * 6 + [ctypes.c_void_p] * 11)
@@ -218,8 +231,8 @@ def kernel_available() -> bool:
     return _load() is not None
 
 
-def free_cells(seg: dict, mark: np.ndarray, stamp: np.ndarray | None = None, use_kernel: bool = True
-               ) -> np.ndarray:
+def free_cells(seg: dict, mark: np.ndarray, stamp: np.ndarray | None = None, use_kernel: bool = True,
+               skip: tuple[np.ndarray, float] | None = None) -> np.ndarray:
     """Flat indices of the cells the segments cross, each once; marks them 1 in ``mark``.
 
     Args:
@@ -231,6 +244,8 @@ def free_cells(seg: dict, mark: np.ndarray, stamp: np.ndarray | None = None, use
             cells already non-zero are skipped, so they must not be crossed cells).
         stamp: (ny * nx,) int64 scratch of the NumPy path (allocated when None).
         use_kernel: False forces the NumPy path (tests).
+        skip: ``(values, at)``: (ny * nx,) float32 per-cell values and a float32 value; cells
+            whose value equals ``at`` are left out (neither returned nor marked). None: none.
 
     Returns:
         (U,) int64 distinct flat indices (order: first visit in C, unspecified in NumPy).
@@ -247,8 +262,14 @@ def free_cells(seg: dict, mark: np.ndarray, stamp: np.ndarray | None = None, use
         ints = [np.ascontiguousarray(seg[k], dtype=np.int64) for k in ("n", "major0", "major_step", "minor_stride")]
         if not (mark.dtype == np.int8 and mark.flags.c_contiguous):
             raise ValueError(f"mark must be a contiguous int8 array, got {mark.dtype}")
+        if skip is not None and not (skip[0].dtype == np.float32 and skip[0].flags.c_contiguous
+                                     and skip[0].size == mark.size):
+            raise ValueError(f"skip values must be a contiguous float32 array of {mark.size} cells, got "
+                             f"{skip[0].dtype} {skip[0].shape}")
         m = lib.sanav_free_cells(B, *(a.ctypes.data for a in arrs), *(a.ctypes.data for a in ints),
-                                 mark.size, mark.ctypes.data, out.ctypes.data)
+                                 mark.size, mark.ctypes.data, out.ctypes.data,
+                                 None if skip is None else skip[0].ctypes.data,
+                                 0.0 if skip is None else float(np.float32(skip[1])))
         if m < 0:
             raise IndexError(f"beam traversal left the grid of {mark.size} cells (segments must be clipped)")
         return out[:m]
@@ -258,6 +279,8 @@ def free_cells(seg: dict, mark: np.ndarray, stamp: np.ndarray | None = None, use
     stamp = np.empty(len(mark), dtype=np.int64) if stamp is None else stamp
     stamp[cells] = pos
     cells = cells[stamp[cells] == pos]
+    if skip is not None:
+        cells = cells[skip[0][cells] != np.float32(skip[1])]
     mark[cells] = 1
     return cells
 

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sanav_mj.mapping import area_kernel
 from sanav_mj.mapping.occupancy import OccupancyGrid
 from sanav_mj.mapping.safe_areas import SafeAreas, merge_rects
 
@@ -93,6 +94,8 @@ class IncrementalSafeAreas:
             p = self._levels[-1]
             self._levels.append(p[0::2, 0::2] + p[1::2, 0::2] + p[0::2, 1::2] + p[1::2, 1::2])
         self.occupied = occ.copy()
+        self._use_kernel = True  # the compiled loops when available (False: NumPy, the reference)
+        self._pyr = area_kernel.Pyramid(self._levels)
         self.boxes = np.zeros((0, 4), dtype=np.int64)
         self.alive = np.zeros(0, dtype=bool)
         self.edges = np.zeros((0, 2), dtype=np.int64)
@@ -145,8 +148,9 @@ class IncrementalSafeAreas:
         mine[cells] = new
         delta = np.where(new, 1, -1).astype(np.int32)
         i, j = np.divmod(cells, nx)
-        for d, lvl in enumerate(self._levels):
-            np.add.at(lvl, (i >> d, j >> d), delta)
+        if not (self._use_kernel and area_kernel.pyramid_add(self._pyr, cells, delta, nx)):
+            for d, lvl in enumerate(self._levels):
+                np.add.at(lvl, (i >> d, j >> d), delta)
         tiles = np.unique((i >> self._lt) * self._ntx + (j >> self._lt))
         self._rebuild_tiles(tiles, self._slots_meeting(tiles))
         return int(tiles.size)
@@ -225,8 +229,13 @@ class IncrementalSafeAreas:
         return np.unique(slots[k[hit]])
 
     def _leaves(self, tiles: np.ndarray) -> np.ndarray:
-        """Free quadtree leaves (cell boxes) of the given tiles, from the count pyramid."""
+        """Free quadtree leaves (cell boxes) of the given tiles, from the count pyramid
+        (compiled: depth first per tile; NumPy: level by level; the same leaves)."""
         ny, nx = self.shape
+        if self._use_kernel:
+            got = area_kernel.tile_leaves(self._pyr, tiles, self._ntx, self.tile, self.shape, self.min_cell)
+            if got is not None:
+                return got
         ti, tj = np.divmod(tiles, self._ntx)
         i0 = ti.astype(np.int64) * self.tile
         j0 = tj.astype(np.int64) * self.tile
@@ -318,6 +327,14 @@ class IncrementalSafeAreas:
         near = ((cb[:, 0] <= boxes[:, 2].max()) & (cb[:, 2] >= boxes[:, 0].min())
                 & (cb[:, 1] <= boxes[:, 3].max()) & (cb[:, 3] >= boxes[:, 1].min()))
         cand, cb = alive[near], cb[near]
+        if self._use_kernel:
+            pos = np.full(len(self.alive), -1, dtype=np.int64)
+            pos[slots] = np.arange(len(slots))
+            got = area_kernel.touching_pairs(boxes, cb, pos[cand])
+            if got is not None:
+                a, b = slots[got[0]], cand[got[1]]
+                self.edges = np.concatenate([self.edges, np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)])
+                return
         base = max(self.shape) + 2
         a_parts, b_parts = [], []
         # (far side of a, span of a) against (near side of b, span of b), both orientations

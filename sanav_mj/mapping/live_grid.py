@@ -466,8 +466,11 @@ class LiveGrid:
         v1 = v0 + r * np.sin(a) / h
         mark = self._mark
         # the cells crossed before the beams' ends, each once, marked 1 (compiled loop, or NumPy)
+        # (compiled path: free cells saturated at l_min are skipped, one more l_free leaves
+        # them, their floor, state and counts as they are; a return in them is added below)
+        skip = (self.log_odds.reshape(-1), self.config.l_min) if self._use_kernel else None
         free = free_cells(segment_columns(np.full(len(r), u0), np.full(len(r), v0), u1, v1, ny, nx), mark,
-                          self._stamp, self._use_kernel)
+                          self._stamp, self._use_kernel, skip)
         ei = np.floor(v1[hit]).astype(np.int64)
         ej = np.floor(u1[hit]).astype(np.int64)
         ein = (ei >= 0) & (ei < ny) & (ej >= 0) & (ej < nx)

@@ -1,0 +1,214 @@
+"""Compiled loops of the incremental safe areas (:mod:`sanav_mj.mapping.incremental`), with NumPy fallbacks.
+
+Three small C functions do, in one call each, what the NumPy code of
+:class:`~sanav_mj.mapping.incremental.IncrementalSafeAreas` does in tens of array calls
+per scan (each a few microseconds of overhead on arrays of a few dozen entries):
+
+* :func:`pyramid_add`: ``+-1`` along each changed cell's ancestors in the count pyramid;
+* :func:`tile_leaves`: the free quadtree leaves of the dirty tiles, from the pyramid (depth
+  first per tile; the NumPy path goes level by level: the same leaves in another order,
+  and the merge that follows depends on the set only);
+* :func:`touching_pairs`: the graph edges of new rectangles (sides on one grid line whose
+  spans overlap by a positive length) by a double loop over the new and nearby rectangles.
+
+All integer arithmetic: the results are exactly those of the NumPy code (tested against it).
+The source is compiled once into the solver-code cache by :func:`sanav_mj.native.compile_cached`
+(``$SANAV_MJ_CACHE`` or ``~/.cache/sanav-mj``) and loaded with :mod:`ctypes`; without a C
+compiler, when compiling fails, or with ``SANAV_MJ_NO_CKERNEL=1``, every function here returns
+None and the caller runs its NumPy code.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+from pathlib import Path
+
+import numpy as np
+
+from sanav_mj.mapping.beam_kernel import NO_KERNEL_ENV
+from sanav_mj.native import CompileError, NoCompilerError, compile_cached
+
+_SOURCE = r"""
+#include <stdint.h>
+
+/* levels[d] is the (rows >> d, width >> d) int32 count pyramid level d (d = 0 .. L-1). */
+void sanav_pyramid_add(int64_t n, const int64_t *cells, const int32_t *delta, int64_t nx, int64_t L,
+                       const int64_t *levels, int64_t width)
+{
+    for (int64_t k = 0; k < n; ++k) {
+        const int64_t i = cells[k] / nx, j = cells[k] % nx;
+        for (int64_t d = 0; d < L; ++d)
+            ((int32_t *)(intptr_t)levels[d])[(i >> d) * (width >> d) + (j >> d)] += delta[k];
+    }
+}
+
+static int64_t leaves_rec(int64_t i0, int64_t j0, int64_t ls, int64_t ny, int64_t nx, int64_t min_cell,
+                          const int64_t *levels, int64_t width, int64_t *out, int64_t m)
+{
+    const int64_t size = (int64_t)1 << ls;
+    const int32_t count = ((const int32_t *)(intptr_t)levels[ls])[(i0 >> ls) * (width >> ls) + (j0 >> ls)];
+    const int64_t i1 = i0 + size < ny ? i0 + size : ny, j1 = j0 + size < nx ? j0 + size : nx;
+    const int64_t area = (i1 - i0) * (j1 - j0);
+    const int leaf = size / 2 >= min_cell ? (count == 0 || count == area) : 1;
+    if (leaf) {
+        if (count == 0) { out[4 * m] = i0; out[4 * m + 1] = j0; out[4 * m + 2] = i1; out[4 * m + 3] = j1; ++m; }
+        return m;
+    }
+    const int64_t half = size / 2;
+    for (int q = 0; q < 4; ++q) {  /* (0,0) (0,1) (1,0) (1,1) as the NumPy path */
+        const int64_t ci = i0 + half * (q >> 1), cj = j0 + half * (q & 1);
+        if (ci < ny && cj < nx) m = leaves_rec(ci, cj, ls - 1, ny, nx, min_cell, levels, width, out, m);
+    }
+    return m;
+}
+
+/* Free quadtree leaves [i0, j0, i1, j1) of the tiles (tile edge 2^lt) into out (4 per leaf). */
+int64_t sanav_tile_leaves(int64_t n, const int64_t *tiles, int64_t ntx, int64_t lt, int64_t ny, int64_t nx,
+                          int64_t min_cell, const int64_t *levels, int64_t width, int64_t *out)
+{
+    int64_t m = 0;
+    for (int64_t k = 0; k < n; ++k)
+        m = leaves_rec((tiles[k] / ntx) << lt, (tiles[k] % ntx) << lt, lt, ny, nx, min_cell, levels, width,
+                       out, m);
+    return m;
+}
+
+/* Pairs (a, b) of a new box a (na boxes) and a candidate box b (nb) that touch: a side of
+   a and the opposite side of b on one grid line, their spans overlapping by > 0. A pair of
+   two new boxes (b_new[k] = index of candidate k among the new ones, else -1) is reported
+   once, from its lower new index. Writes (a index, b index) pairs to out; returns the count. */
+int64_t sanav_touching(int64_t na, const int64_t *a, int64_t nb, const int64_t *b, const int64_t *b_new,
+                       int64_t *out)
+{
+    int64_t m = 0;
+    for (int64_t x = 0; x < na; ++x) {
+        const int64_t *p = a + 4 * x;
+        for (int64_t y = 0; y < nb; ++y) {
+            const int64_t *q = b + 4 * y;
+            if (b_new[y] >= 0 && b_new[y] <= x) continue;
+            const int side = (p[3] == q[1] || p[1] == q[3]) && p[0] < q[2] && q[0] < p[2];  /* rows overlap */
+            const int over = (p[2] == q[0] || p[0] == q[2]) && p[1] < q[3] && q[1] < p[3];  /* columns */
+            if (side || over) { out[2 * m] = x; out[2 * m + 1] = y; ++m; }
+        }
+    }
+    return m;
+}
+"""
+
+_FLAGS = ("-O2", "-fPIC", "-shared", "-std=c99", "-fno-fast-math")
+
+_lib: ctypes.CDLL | None = None
+_tried = False
+
+
+def _write_source(folder: Path) -> str:
+    src = folder / "areas.c"
+    src.write_text(_SOURCE)
+    return str(src)
+
+
+def _load() -> ctypes.CDLL | None:
+    """The compiled functions, or None (no compiler, failed compile, ``SANAV_MJ_NO_CKERNEL=1``)."""
+    global _lib, _tried
+    if _tried:
+        return _lib
+    _tried = True
+    if os.environ.get(NO_KERNEL_ENV, "") not in ("", "0"):
+        return None
+    try:
+        target, _ = compile_cached("areas", (_SOURCE,), _write_source, _FLAGS, "the safe-area kernel")
+        lib = ctypes.CDLL(str(target))
+    except (NoCompilerError, CompileError, OSError):
+        return None
+    i64, ptr = ctypes.c_int64, ctypes.c_void_p
+    lib.sanav_pyramid_add.restype = None
+    lib.sanav_pyramid_add.argtypes = [i64, ptr, ptr, i64, i64, ptr, i64]
+    lib.sanav_tile_leaves.restype = i64
+    lib.sanav_tile_leaves.argtypes = [i64, ptr, i64, i64, i64, i64, i64, ptr, i64, ptr]
+    lib.sanav_touching.restype = i64
+    lib.sanav_touching.argtypes = [i64, ptr, i64, ptr, ptr, ptr]
+    _lib = lib
+    return _lib
+
+
+def kernel_available() -> bool:
+    """Whether the compiled safe-area functions are in use (else the NumPy code)."""
+    return _load() is not None
+
+
+class Pyramid:
+    """The count pyramid's levels as the compiled functions take them.
+
+    Args:
+        levels: the (rows >> d, width >> d) int32 C-contiguous levels d = 0 .. L-1 (kept
+            alive and updated in place).
+    """
+
+    def __init__(self, levels: list[np.ndarray]) -> None:
+        for d, lv in enumerate(levels):
+            if lv.dtype != np.int32 or not lv.flags.c_contiguous:
+                raise ValueError(f"pyramid level {d} must be a contiguous int32 array, got {lv.dtype}")
+        self.levels = levels
+        self.width = int(levels[0].shape[1])
+        self.ptrs = np.array([lv.ctypes.data for lv in levels], dtype=np.int64)
+
+
+def pyramid_add(pyr: Pyramid, cells: np.ndarray, delta: np.ndarray, nx: int) -> bool:
+    """Add ``delta[k]`` along the ancestors of cell ``cells[k]`` at every level; False (and
+    nothing done) without the kernel.
+
+    Args:
+        pyr: the pyramid.
+        cells: (K,) int64 flat grid indices ``i * nx + j``; delta: (K,) int32.
+        nx: grid columns.
+    """
+    lib = _load()
+    if lib is None:
+        return False
+    cells = np.ascontiguousarray(cells, dtype=np.int64)
+    delta = np.ascontiguousarray(delta, dtype=np.int32)
+    lib.sanav_pyramid_add(len(cells), cells.ctypes.data, delta.ctypes.data, nx, len(pyr.levels),
+                          pyr.ptrs.ctypes.data, pyr.width)
+    return True
+
+
+def tile_leaves(pyr: Pyramid, tiles: np.ndarray, ntx: int, tile: int, shape: tuple[int, int], min_cell: int
+                ) -> np.ndarray | None:
+    """(N, 4) int64 free quadtree leaves ``[i0, j0, i1, j1)`` of the tiles (flat tile indices,
+    ``ntx`` tiles a row, edge ``tile`` cells), depth first; None without the kernel."""
+    lib = _load()
+    if lib is None:
+        return None
+    tiles = np.ascontiguousarray(tiles, dtype=np.int64)
+    lt = int(tile).bit_length() - 1
+    if len(pyr.levels) != lt + 1:
+        raise ValueError(f"the pyramid needs {lt + 1} levels for tiles of {tile} cells, got {len(pyr.levels)}")
+    out = np.empty((len(tiles) * tile * tile, 4), dtype=np.int64)
+    m = lib.sanav_tile_leaves(len(tiles), tiles.ctypes.data, ntx, lt, shape[0], shape[1], min_cell,
+                              pyr.ptrs.ctypes.data, pyr.width, out.ctypes.data)
+    return out[:m]
+
+
+def touching_pairs(a: np.ndarray, b: np.ndarray, b_new: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Index pairs of touching boxes (a side of ``a[x]`` and the opposite side of ``b[y]`` on
+    one grid line, spans overlapping by a positive length); None without the kernel.
+
+    Args:
+        a: (NA, 4) int64 new boxes ``[i0, j0, i1, j1)``.
+        b: (NB, 4) int64 candidate boxes (may include the new ones).
+        b_new: (NB,) int64 index of candidate ``y`` in ``a`` when it is one of the new boxes,
+            else -1; such pairs are reported once (from the lower index of ``a``).
+
+    Returns:
+        (x, y): (P,) int64 indices into ``a`` and ``b``.
+    """
+    lib = _load()
+    if lib is None:
+        return None
+    a = np.ascontiguousarray(a, dtype=np.int64)
+    b = np.ascontiguousarray(b, dtype=np.int64)
+    b_new = np.ascontiguousarray(b_new, dtype=np.int64)
+    out = np.empty((len(a) * len(b), 2), dtype=np.int64)
+    m = lib.sanav_touching(len(a), a.ctypes.data, len(b), b.ctypes.data, b_new.ctypes.data, out.ctypes.data)
+    return out[:m, 0], out[:m, 1]
