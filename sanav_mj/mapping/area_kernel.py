@@ -31,6 +31,7 @@ from sanav_mj.native import CompileError, NoCompilerError, compile_cached
 
 _SOURCE = r"""
 #include <stdint.h>
+#include <stdlib.h>
 
 /* levels[d] is the (rows >> d, width >> d) int32 count pyramid level d (d = 0 .. L-1). */
 void sanav_pyramid_add(int64_t n, const int64_t *cells, const int32_t *delta, int64_t nx, int64_t L,
@@ -94,6 +95,98 @@ int64_t sanav_touching(int64_t na, const int64_t *a, int64_t nb, const int64_t *
     }
     return m;
 }
+
+/* Slots (ascending) of the alive boxes meeting a dirty tile (dirty: nty x ntx bytes, tile
+   edge 2^lt cells), into out; returns their number. */
+int64_t sanav_meeting(int64_t cap, const uint8_t *alive, const int64_t *boxes, int64_t lt, const uint8_t *dirty,
+                      int64_t ntx, int64_t *out)
+{
+    int64_t m = 0;
+    for (int64_t s = 0; s < cap; ++s) {
+        if (!alive[s]) continue;
+        const int64_t *b = boxes + 4 * s;
+        const int64_t a0 = b[0] >> lt, a1 = (b[2] - 1) >> lt, c0 = b[1] >> lt, c1 = (b[3] - 1) >> lt;
+        int hit = 0;
+        for (int64_t a = a0; a <= a1 && !hit; ++a)
+            for (int64_t c = c0; c <= c1; ++c)
+                if (dirty[a * ntx + c]) { hit = 1; break; }
+        if (hit) out[m++] = s;
+    }
+    return m;
+}
+
+/* The parts of the n boxes in clean tiles, cut along tile lines, into out (4 per part). */
+int64_t sanav_pieces(int64_t n, const int64_t *boxes, int64_t lt, const uint8_t *dirty, int64_t ntx, int64_t *out)
+{
+    int64_t m = 0;
+    const int64_t t = (int64_t)1 << lt;
+    for (int64_t k = 0; k < n; ++k) {
+        const int64_t *b = boxes + 4 * k;
+        const int64_t a0 = b[0] >> lt, a1 = (b[2] - 1) >> lt, c0 = b[1] >> lt, c1 = (b[3] - 1) >> lt;
+        for (int64_t a = a0; a <= a1; ++a)
+            for (int64_t c = c0; c <= c1; ++c) {
+                if (dirty[a * ntx + c]) continue;
+                int64_t *o = out + 4 * m++;
+                o[0] = b[0] > a * t ? b[0] : a * t;
+                o[1] = b[1] > c * t ? b[1] : c * t;
+                o[2] = b[2] < (a + 1) * t ? b[2] : (a + 1) * t;
+                o[3] = b[3] < (c + 1) * t ? b[3] : (c + 1) * t;
+            }
+    }
+    return m;
+}
+
+typedef struct { int64_t i0, j0, i1, j1; } box_t;
+
+static int cmp3(int64_t a0, int64_t a1, int64_t a2, int64_t b0, int64_t b1, int64_t b2)
+{
+    if (a0 != b0) return a0 < b0 ? -1 : 1;
+    if (a1 != b1) return a1 < b1 ? -1 : 1;
+    return (a2 > b2) - (a2 < b2);
+}
+static int by_rows(const void *x, const void *y)  /* chains along x: same rows, then j0 */
+{
+    const box_t *a = x, *b = y;
+    return cmp3(a->i0, a->i1, a->j0, b->i0, b->i1, b->j0);
+}
+static int by_cols(const void *x, const void *y)  /* chains along y: same columns, then i0 */
+{
+    const box_t *a = x, *b = y;
+    return cmp3(a->j0, a->j1, a->i0, b->j0, b->j1, b->i0);
+}
+static int by_corner(const void *x, const void *y)
+{
+    const box_t *a = x, *b = y;
+    return cmp3(a->i0, a->j0, 0, b->i0, b->j0, 0);
+}
+
+/* merge_rects (sanav_mj/mapping/safe_areas.py, method "paper") in place on n disjoint boxes:
+   full-edge chain merges in alternating passes, x first, until a pass after the first
+   changes nothing; the result sorted by (i0, j0). Returns the number of boxes. */
+int64_t sanav_merge(int64_t n, int64_t *boxes)
+{
+    box_t *b = (box_t *)boxes;
+    int axis = 1, passes = 0;
+    while (n > 1) {
+        qsort(b, (size_t)n, sizeof(box_t), axis == 1 ? by_rows : by_cols);
+        int64_t w = 0;
+        for (int64_t k = 0; k < n; ++k) {
+            if (w > 0) {
+                box_t *p = b + w - 1;
+                if (axis == 1 && p->i0 == b[k].i0 && p->i1 == b[k].i1 && p->j1 == b[k].j0) { p->j1 = b[k].j1; continue; }
+                if (axis == 0 && p->j0 == b[k].j0 && p->j1 == b[k].j1 && p->i1 == b[k].i0) { p->i1 = b[k].i1; continue; }
+            }
+            b[w++] = b[k];
+        }
+        const int changed = w != n;
+        n = w;
+        ++passes;
+        if (!changed && passes > 1) break;
+        axis = 1 - axis;
+    }
+    qsort(b, (size_t)n, sizeof(box_t), by_corner);
+    return n;
+}
 """
 
 _FLAGS = ("-O2", "-fPIC", "-shared", "-std=c99", "-fno-fast-math")
@@ -128,6 +221,12 @@ def _load() -> ctypes.CDLL | None:
     lib.sanav_tile_leaves.argtypes = [i64, ptr, i64, i64, i64, i64, i64, ptr, i64, ptr]
     lib.sanav_touching.restype = i64
     lib.sanav_touching.argtypes = [i64, ptr, i64, ptr, ptr, ptr]
+    lib.sanav_meeting.restype = i64
+    lib.sanav_meeting.argtypes = [i64, ptr, ptr, i64, ptr, i64, ptr]
+    lib.sanav_pieces.restype = i64
+    lib.sanav_pieces.argtypes = [i64, ptr, i64, ptr, i64, ptr]
+    lib.sanav_merge.restype = i64
+    lib.sanav_merge.argtypes = [i64, ptr]
     _lib = lib
     return _lib
 
@@ -212,3 +311,59 @@ def touching_pairs(a: np.ndarray, b: np.ndarray, b_new: np.ndarray) -> tuple[np.
     out = np.empty((len(a) * len(b), 2), dtype=np.int64)
     m = lib.sanav_touching(len(a), a.ctypes.data, len(b), b.ctypes.data, b_new.ctypes.data, out.ctypes.data)
     return out[:m, 0], out[:m, 1]
+
+
+def _dirty_bytes(dirty: np.ndarray) -> np.ndarray:
+    if dirty.dtype != np.bool_ or dirty.ndim != 2 or not dirty.flags.c_contiguous:
+        raise ValueError(f"dirty must be a contiguous (nty, ntx) bool array, got {dirty.dtype} {dirty.shape}")
+    return dirty
+
+
+def slots_meeting(alive: np.ndarray, boxes: np.ndarray, tile: int, dirty: np.ndarray) -> np.ndarray | None:
+    """(S,) int64 ascending slots of the alive boxes that meet a dirty tile; None without the kernel.
+
+    Args:
+        alive: (cap,) bool; boxes: (cap, 4) int64 ``[i0, j0, i1, j1)`` (read where alive).
+        tile: tile edge [cells], a power of two; dirty: (nty, ntx) bool dirty tiles.
+    """
+    lib = _load()
+    if lib is None:
+        return None
+    dirty = _dirty_bytes(dirty)
+    if alive.dtype != np.bool_ or boxes.dtype != np.int64 or not boxes.flags.c_contiguous or len(boxes) != len(alive):
+        raise ValueError(f"alive (cap,) bool and boxes (cap, 4) int64 expected, got {alive.dtype} {alive.shape}, "
+                         f"{boxes.dtype} {boxes.shape}")
+    out = np.empty(len(alive), dtype=np.int64)
+    m = lib.sanav_meeting(len(alive), alive.ctypes.data, boxes.ctypes.data, int(tile).bit_length() - 1,
+                          dirty.ctypes.data, dirty.shape[1], out.ctypes.data)
+    return out[:m]
+
+
+def clean_pieces(boxes: np.ndarray, tile: int, dirty: np.ndarray) -> np.ndarray | None:
+    """(P, 4) int64 parts of ``boxes`` ((N, 4) int64) lying in clean tiles, cut along tile
+    lines (box by box, tile rows then columns); None without the kernel."""
+    lib = _load()
+    if lib is None:
+        return None
+    dirty = _dirty_bytes(dirty)
+    boxes = np.ascontiguousarray(boxes, dtype=np.int64)
+    lt = int(tile).bit_length() - 1
+    spans = (((boxes[:, 2] - 1) >> lt) - (boxes[:, 0] >> lt) + 1) * (((boxes[:, 3] - 1) >> lt) - (boxes[:, 1] >> lt) + 1)
+    out = np.empty((int(spans.sum()), 4), dtype=np.int64)
+    m = lib.sanav_pieces(len(boxes), boxes.ctypes.data, lt, dirty.ctypes.data, dirty.shape[1], out.ctypes.data)
+    return out[:m]
+
+
+def merge_boxes(boxes: np.ndarray) -> np.ndarray | None:
+    """:func:`sanav_mj.mapping.safe_areas.merge_rects` (method ``"paper"``) compiled: the
+    same (R, 4) int64 boxes sorted by ``(i0, j0)``; None without the kernel.
+
+    Args:
+        boxes: (N, 4) int cell boxes ``[i0, j0, i1, j1)`` with disjoint interiors.
+    """
+    lib = _load()
+    if lib is None:
+        return None
+    b = np.array(boxes, dtype=np.int64, order="C", copy=True).reshape(-1, 4)
+    m = lib.sanav_merge(len(b), b.ctypes.data)
+    return b[:m]

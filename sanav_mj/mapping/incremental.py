@@ -208,6 +208,12 @@ class IncrementalSafeAreas:
         """Alive slots whose rectangle meets any of the given tiles."""
         t = self.tile
         ti, tj = np.divmod(tiles, self._ntx)
+        if self._use_kernel:
+            dirty = np.zeros((self._nty, self._ntx), dtype=bool)
+            dirty[ti, tj] = True
+            got = area_kernel.slots_meeting(self.alive, self.boxes, t, dirty)
+            if got is not None:
+                return got
         slots = np.flatnonzero(self.alive)
         b = self.boxes[slots]
         # prefilter with the dirty tiles' bounding box
@@ -266,6 +272,10 @@ class IncrementalSafeAreas:
         if not len(slots):
             return np.zeros((0, 4), dtype=np.int64)
         b = self.boxes[slots]
+        if self._use_kernel:
+            got = area_kernel.clean_pieces(b, self.tile, dirty)
+            if got is not None:
+                return got
         lt, t = self._lt, self.tile
         a0, a1 = b[:, 0] >> lt, (b[:, 2] - 1) >> lt
         c0, c1 = b[:, 1] >> lt, (b[:, 3] - 1) >> lt
@@ -286,7 +296,11 @@ class IncrementalSafeAreas:
         pieces = self._pieces(removed, dirty)
         leaves = self._leaves(tiles)
         local = np.concatenate([pieces, leaves])
-        new = merge_rects(local) if len(local) else local.reshape(0, 4)
+        new = None
+        if self._use_kernel and len(local):
+            new = area_kernel.merge_boxes(local)
+        if new is None:
+            new = merge_rects(local) if len(local) else local.reshape(0, 4)
         # free the removed slots and their edges
         if len(removed):
             self.alive[removed] = False

@@ -183,3 +183,35 @@ def test_the_areas_fall_back_to_numpy_without_the_kernel(monkeypatch):
         occ.reshape(-1)[cells] ^= True
         inc.update(occ, cells)
         _check(inc, occ, 1)
+
+
+def test_compiled_merge_slots_and_pieces_equal_the_numpy_code():
+    """area_kernel.merge_boxes equals merge_rects on the free quadtree leaves of random grids
+    (any input order); slots_meeting and clean_pieces equal the NumPy _slots_meeting and
+    _pieces on random dirty tiles."""
+    from sanav_mj.mapping import area_kernel
+    from sanav_mj.mapping.quadtree import build_quadtree
+    from sanav_mj.mapping.safe_areas import merge_rects
+
+    if not area_kernel.kernel_available():
+        pytest.skip("no C compiler: only the NumPy code exists")
+    rng = np.random.default_rng(21)
+    for k in range(12):
+        occ = rng.random((int(rng.integers(5, 70)), int(rng.integers(5, 70)))) < rng.uniform(0.02, 0.4)
+        tree = build_quadtree(occ, min_cell=int(rng.integers(1, 3)))
+        leaves = tree.boxes[tree.free]
+        leaves = leaves[rng.permutation(len(leaves))]
+        assert np.array_equal(area_kernel.merge_boxes(leaves), merge_rects(leaves))
+    occ = rng.random((90, 120)) < 0.1
+    inc = IncrementalSafeAreas(_grid(occ), tile=16)
+    ref = IncrementalSafeAreas(_grid(occ), tile=16)
+    ref._use_kernel = False
+    for _ in range(10):
+        tiles = np.unique(rng.integers(0, inc._nty * inc._ntx, int(rng.integers(1, 8))))
+        dirty = np.zeros((inc._nty, inc._ntx), dtype=bool)
+        dirty.reshape(-1)[tiles] = True
+        slots = inc._slots_meeting(tiles)
+        ref.alive, ref.boxes = inc.alive, inc.boxes
+        assert len(slots) > 0 and np.array_equal(slots, ref._slots_meeting(tiles))
+        got, want = inc._pieces(slots, dirty), ref._pieces(slots, dirty)
+        assert len(got) > 0 and sorted(map(tuple, got.tolist())) == sorted(map(tuple, want.tolist()))
