@@ -30,6 +30,7 @@ from sanav_mj.mapping.beam_kernel import NO_KERNEL_ENV
 from sanav_mj.native import CompileError, NoCompilerError, compile_cached
 
 _SOURCE = r"""
+#include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
 
@@ -187,9 +188,71 @@ int64_t sanav_merge(int64_t n, int64_t *boxes)
     qsort(b, (size_t)n, sizeof(box_t), by_corner);
     return n;
 }
+
+typedef struct { int64_t key, val; } kv_t;
+static int by_key(const void *x, const void *y)
+{
+    const int64_t a = ((const kv_t *)x)->key, b = ((const kv_t *)y)->key;
+    return (a > b) - (a < b);
+}
+
+/* IncrementalSafeAreas.safe_areas in one pass: the alive boxes sorted by i0 * base + j0
+   (out_b, R x 4), their world rectangles (out_r, R x 4: xmin, ymin, xmax, ymax), the edges
+   renumbered, each (low, high), sorted by low * max(R, 1) + high (out_e, E x 2), centre
+   distances (out_w) and portals (out_p, E x 2 x 2) as the NumPy code computes them.
+   kv (max(cap, E) entries) and index (cap) are scratch. Returns R. */
+int64_t sanav_snapshot(int64_t cap, const uint8_t *alive, const int64_t *boxes, int64_t E, const int64_t *edges,
+                       int64_t base, double ox, double oy, double h, int64_t *out_b, double *out_r, int64_t *out_e,
+                       double *out_w, double *out_p, kv_t *kv, int64_t *index)
+{
+    int64_t R = 0;
+    for (int64_t s = 0; s < cap; ++s)
+        if (alive[s]) { kv[R].key = boxes[4 * s] * base + boxes[4 * s + 1]; kv[R].val = s; ++R; }
+    qsort(kv, (size_t)R, sizeof(kv_t), by_key);
+    for (int64_t s = 0; s < cap; ++s) index[s] = -1;
+    for (int64_t k = 0; k < R; ++k) {
+        const int64_t *b = boxes + 4 * kv[k].val;
+        index[kv[k].val] = k;
+        for (int c = 0; c < 4; ++c) out_b[4 * k + c] = b[c];
+        out_r[4 * k] = ox + h * (double)b[1];
+        out_r[4 * k + 1] = oy + h * (double)b[0];
+        out_r[4 * k + 2] = ox + h * (double)b[3];
+        out_r[4 * k + 3] = oy + h * (double)b[2];
+    }
+    const int64_t mr = R > 1 ? R : 1;
+    for (int64_t k = 0; k < E; ++k) {
+        int64_t a = index[edges[2 * k]], b = index[edges[2 * k + 1]];
+        if (a > b) { const int64_t t = a; a = b; b = t; }
+        kv[k].key = a * mr + b;
+        kv[k].val = k;
+    }
+    qsort(kv, (size_t)E, sizeof(kv_t), by_key);
+    for (int64_t k = 0; k < E; ++k) {
+        const int64_t a = kv[k].key / mr, b = kv[k].key % mr;
+        out_e[2 * k] = a;
+        out_e[2 * k + 1] = b;
+        const double *ra = out_r + 4 * a, *rb = out_r + 4 * b;
+        const double dx = 0.5 * (ra[0] + ra[2]) - 0.5 * (rb[0] + rb[2]);
+        const double dy = 0.5 * (ra[1] + ra[3]) - 0.5 * (rb[1] + rb[3]);
+        const double sx = dx * dx, sy = dy * dy;
+        out_w[k] = sqrt(sx + sy);
+        const int64_t *ba = out_b + 4 * a, *bb = out_b + 4 * b;
+        const int side = ba[3] == bb[1] || bb[3] == ba[1];
+        const int64_t xline = ba[3] == bb[1] ? ba[3] : bb[3];
+        const int64_t yline = ba[2] == bb[0] ? ba[2] : bb[2];
+        const int64_t lo_i = ba[0] > bb[0] ? ba[0] : bb[0], hi_i = ba[2] < bb[2] ? ba[2] : bb[2];
+        const int64_t lo_j = ba[1] > bb[1] ? ba[1] : bb[1], hi_j = ba[3] < bb[3] ? ba[3] : bb[3];
+        double *p = out_p + 4 * k;
+        p[0] = ox + h * (double)(side ? xline : lo_j);
+        p[2] = ox + h * (double)(side ? xline : hi_j);
+        p[1] = oy + h * (double)(side ? lo_i : yline);
+        p[3] = oy + h * (double)(side ? hi_i : yline);
+    }
+    return R;
+}
 """
 
-_FLAGS = ("-O2", "-fPIC", "-shared", "-std=c99", "-fno-fast-math")
+_FLAGS = ("-O2", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off", "-fno-fast-math")
 
 _lib: ctypes.CDLL | None = None
 _tried = False
@@ -227,6 +290,9 @@ def _load() -> ctypes.CDLL | None:
     lib.sanav_pieces.argtypes = [i64, ptr, i64, ptr, i64, ptr]
     lib.sanav_merge.restype = i64
     lib.sanav_merge.argtypes = [i64, ptr]
+    lib.sanav_snapshot.restype = i64
+    lib.sanav_snapshot.argtypes = [i64, ptr, ptr, i64, ptr, i64, ctypes.c_double, ctypes.c_double, ctypes.c_double,
+                                   ptr, ptr, ptr, ptr, ptr, ptr, ptr]
     _lib = lib
     return _lib
 
@@ -367,3 +433,39 @@ def merge_boxes(boxes: np.ndarray) -> np.ndarray | None:
     b = np.array(boxes, dtype=np.int64, order="C", copy=True).reshape(-1, 4)
     m = lib.sanav_merge(len(b), b.ctypes.data)
     return b[:m]
+
+
+def snapshot(alive: np.ndarray, boxes: np.ndarray, edges: np.ndarray, base: int, origin, resolution: float):
+    """The compact safe areas of :meth:`IncrementalSafeAreas.safe_areas
+    <sanav_mj.mapping.incremental.IncrementalSafeAreas.safe_areas>` in one compiled pass;
+    None without the kernel.
+
+    Args:
+        alive: (cap,) bool; boxes: (cap, 4) int64 slot boxes; edges: (E, 2) int64 slot pairs.
+        base: sort-key base, above every cell coordinate.
+        origin: (2,) [m] grid origin; resolution: [m] cell edge.
+
+    Returns:
+        boxes (R, 4) int64 sorted by ``(i0, j0)``, rects (R, 4) [m], edges (E, 2) int64
+        sorted, weights (E,) [m], portals (E, 2, 2) [m].
+    """
+    lib = _load()
+    if lib is None:
+        return None
+    if alive.dtype != np.bool_ or boxes.dtype != np.int64 or not boxes.flags.c_contiguous or len(boxes) != len(alive):
+        raise ValueError(f"alive (cap,) bool and boxes (cap, 4) int64 expected, got {alive.dtype} {alive.shape}, "
+                         f"{boxes.dtype} {boxes.shape}")
+    edges = np.ascontiguousarray(edges, dtype=np.int64).reshape(-1, 2)
+    cap, E = len(alive), len(edges)
+    R = int(np.count_nonzero(alive))
+    out_b = np.empty((R, 4), dtype=np.int64)
+    out_r = np.empty((R, 4))
+    out_e = np.empty((E, 2), dtype=np.int64)
+    out_w = np.empty(E)
+    out_p = np.empty((E, 2, 2))
+    kv = np.empty(2 * max(cap, E), dtype=np.int64)
+    index = np.empty(cap, dtype=np.int64)
+    lib.sanav_snapshot(cap, alive.ctypes.data, boxes.ctypes.data, E, edges.ctypes.data, int(base),
+                       float(origin[0]), float(origin[1]), float(resolution), out_b.ctypes.data, out_r.ctypes.data,
+                       out_e.ctypes.data, out_w.ctypes.data, out_p.ctypes.data, kv.ctypes.data, index.ctypes.data)
+    return out_b, out_r, out_e, out_w, out_p

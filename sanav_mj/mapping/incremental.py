@@ -174,9 +174,14 @@ class IncrementalSafeAreas:
                 metres; edges sorted; weights and portals as
                 :func:`~sanav_mj.mapping.safe_areas.connectivity` computes them).
         """
+        base = max(self.shape) + 1
+        if self._use_kernel:
+            got = area_kernel.snapshot(self.alive, self.boxes, self.edges, base, self.origin, self.resolution)
+            if got is not None:
+                b, rects, e, weights, portals = got
+                return b, SafeAreas(rects=rects, edges=e, weights=weights, portals=portals)
         slots = np.flatnonzero(self.alive)
         b = self.boxes[slots]
-        base = max(self.shape) + 1
         order = np.argsort(b[:, 0] * base + b[:, 1])
         slots, b = slots[order], b[order]
         index = np.full(len(self.alive), -1, dtype=np.int64)
