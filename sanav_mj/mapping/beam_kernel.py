@@ -88,6 +88,76 @@ int64_t sanav_free_cells(int64_t B, const double *base, const double *inc, const
     return m;
 }
 
+/* Liang-Barsky on one axis, as segment_columns: p the segment's extent, q its start, the
+   slab [eps, hi]; narrows [t0, t1]. */
+static void clip_axis(double p, double q, double hi, double *t0, double *t1)
+{
+    const double eps = 1e-9;
+    const double ta = (eps - q) / p, tb = (hi - q) / p;
+    const int inside = q >= eps && q <= hi;
+    const double lo_t = p > 0 ? ta : (p < 0 ? tb : (inside ? -INFINITY : INFINITY));
+    const double hi_t = p > 0 ? tb : (p < 0 ? ta : (inside ? INFINITY : -INFINITY));
+    if (lo_t > *t0) *t0 = lo_t;
+    if (hi_t < *t1) *t1 = hi_t;
+}
+
+/* segment_columns (sanav_mj/mapping/live_grid.py, the same operations in the same order,
+   per segment) and sanav_free_cells in one call, for B beams from (u0, v0) to (u1[b], v1[b])
+   [cells] on an ny x nx grid. Returns the number of cells appended to out, or -1. */
+int64_t sanav_scan_cells(int64_t B, double u0, double v0, const double *u1, const double *v1, int64_t ny,
+                         int64_t nx, int8_t *mark, int64_t *out, const float *skip_lo, float skip_at)
+{
+    const double eps = 1e-9;
+    const int64_t size = ny * nx;
+    int64_t m = 0;
+    for (int64_t b = 0; b < B; ++b) {
+        const double du = u1[b] - u0, dv = v1[b] - v0;
+        double t0 = 0.0, t1 = 1.0;
+        clip_axis(du, u0, (double)nx - eps, &t0, &t1);
+        clip_axis(dv, v0, (double)ny - eps, &t0, &t1);
+        if (!(t1 >= t0)) continue;
+        const double cu0 = u0 + t0 * du, cv0 = v0 + t0 * dv, cu1 = u0 + t1 * du, cv1 = v0 + t1 * dv;
+        const int xmajor = fabs(du) >= fabs(dv);
+        const double a0 = xmajor ? cu0 : cv0, b0 = xmajor ? cv0 : cu0;
+        const double a1 = xmajor ? cu1 : cv1, b1 = xmajor ? cv1 : cu1;
+        const double c0 = floor(a0), c1 = floor(a1);
+        const double step = c1 >= c0 ? 1.0 : -1.0;
+        const int64_t n = (int64_t)(fabs(c1 - c0) + 1.0);
+        const double da = a1 - a0;
+        const double slope = da != 0 ? (b1 - b0) / da : 0.0;
+        const double base = b0 + ((c0 + (step > 0 ? 1.0 : 0.0)) - a0) * slope;
+        const double major_stride = xmajor ? 1.0 : (double)nx;
+        const int64_t minor_stride = xmajor ? nx : 1;
+        const double fb0 = floor(b0), fb1 = floor(b1);
+        const double inc = step * slope;
+        const double lo = fb0 < fb1 ? fb0 : fb1, hi = fb0 > fb1 ? fb0 : fb1;
+        const int64_t major0 = (int64_t)(c0 * major_stride), major_step = (int64_t)(step * major_stride);
+        double entry = fb0;
+        for (int64_t k = 0; k < n; ++k) {
+            double ex;
+            if (k == n - 1) {
+                ex = fb1;
+            } else {
+                double t = (double)k * inc;
+                ex = floor_exact(base + t);
+                if (ex < lo) ex = lo;
+                if (ex > hi) ex = hi;
+            }
+            const int64_t major = major0 + k * major_step;
+            int64_t c = major + (int64_t)entry * minor_stride;
+            if (c < 0 || c >= size) return -1;
+            if (!mark[c] && !(skip_lo && skip_lo[c] == skip_at)) { mark[c] = 1; out[m++] = c; }
+            if (ex != entry) {
+                c = major + (int64_t)ex * minor_stride;
+                if (c < 0 || c >= size) return -1;
+                if (!mark[c] && !(skip_lo && skip_lo[c] == skip_at)) { mark[c] = 1; out[m++] = c; }
+            }
+            entry = ex;
+        }
+    }
+    return m;
+}
+
 /* Add d[i] (+-1) to the counts pad[] at every kernel offset around cells[i] (grid flat
    indices, nx columns; pad is the grid padded by r cells on every side, pw columns).
    Writes to out the grid flat indices, sorted, whose count went from zero to non-zero or
@@ -219,6 +289,10 @@ def _load() -> ctypes.CDLL | None:
     f.restype = ctypes.c_int64
     f.argtypes = ([ctypes.c_int64] + [ctypes.c_void_p] * 10 + [ctypes.c_int64] + [ctypes.c_void_p] * 3
                   + [ctypes.c_float])
+    h = lib.sanav_scan_cells
+    h.restype = ctypes.c_int64
+    h.argtypes = ([ctypes.c_int64, ctypes.c_double, ctypes.c_double] + [ctypes.c_void_p] * 2 + [ctypes.c_int64] * 2
+                  + [ctypes.c_void_p] * 3 + [ctypes.c_float])
     g = lib.sanav_commit
     g.restype = None
     g.argtypes = ([ctypes.c_int64] + [ctypes.c_void_p] * 5 + [ctypes.c_int64] * 6 + [ctypes.c_void_p] * 11)
@@ -310,6 +384,49 @@ def expand_columns(seg: dict) -> np.ndarray:
     flat = major + entry * ms
     two = entry != exit_
     return np.concatenate([flat, major[two] + exit_[two] * ms[two]]).astype(np.int64)
+
+
+def scan_free_cells(u0: float, v0: float, u1: np.ndarray, v1: np.ndarray, shape: tuple[int, int],
+                    mark: np.ndarray, skip: tuple[np.ndarray, float] | None = None, out: np.ndarray | None = None
+                    ) -> np.ndarray | None:
+    """:func:`free_cells` of :func:`~sanav_mj.mapping.live_grid.segment_columns` for beams
+    from one point, in one compiled call (the clipping and set-up per beam in C, with the
+    same operations); None without the kernel.
+
+    Args:
+        u0, v0: start of every beam [cells] (x = column, y = row).
+        u1, v1: (B,) float64 beam ends [cells].
+        shape: (ny, nx) grid shape.
+        mark, skip: as :func:`free_cells`.
+        out: (ny * nx,) int64 buffer for the result (each cell appears at most once), kept
+            by the caller between scans; None: allocated.
+
+    Returns:
+        (U,) int64 distinct flat indices (a view of ``out``), marked 1 in ``mark``; or None.
+    """
+    lib = _load()
+    if lib is None:
+        return None
+    ny, nx = shape
+    u1 = np.ascontiguousarray(u1, dtype=np.float64)
+    v1 = np.ascontiguousarray(v1, dtype=np.float64)
+    if u1.shape != v1.shape or u1.ndim != 1:
+        raise ValueError(f"u1, v1 must be (B,) arrays of one length, got {u1.shape}, {v1.shape}")
+    if not (mark.dtype == np.int8 and mark.flags.c_contiguous and mark.size == ny * nx):
+        raise ValueError(f"mark must be a contiguous int8 array of {ny * nx} cells, got {mark.dtype} {mark.shape}")
+    if skip is not None and not (skip[0].dtype == np.float32 and skip[0].flags.c_contiguous
+                                 and skip[0].size == mark.size):
+        raise ValueError(f"skip values must be a contiguous float32 array of {mark.size} cells")
+    if out is None:
+        out = np.empty(ny * nx, dtype=np.int64)
+    elif not (out.dtype == np.int64 and out.flags.c_contiguous and out.size >= ny * nx):
+        raise ValueError(f"out must be a contiguous int64 array of >= {ny * nx} cells, got {out.dtype} {out.shape}")
+    m = lib.sanav_scan_cells(len(u1), float(u0), float(v0), u1.ctypes.data, v1.ctypes.data, ny, nx,
+                             mark.ctypes.data, out.ctypes.data, None if skip is None else skip[0].ctypes.data,
+                             0.0 if skip is None else float(np.float32(skip[1])))
+    if m < 0:
+        raise IndexError(f"beam traversal left the grid of {mark.size} cells")
+    return out[:m]
 
 
 class CommitScratch:

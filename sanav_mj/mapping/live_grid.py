@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sanav_mj.mapping.beam_kernel import CommitScratch, commit_cells, expand_columns, free_cells
+from sanav_mj.mapping.beam_kernel import CommitScratch, commit_cells, expand_columns, free_cells, scan_free_cells
 from sanav_mj.mapping.occupancy import OccupancyGrid, grid_shape
 
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
@@ -330,6 +330,7 @@ class LiveGrid:
         self._params = np.array([config.l_free, config.l_occ, config.l_min, config.l_max, config.free_thresh,
                                  config.occ_thresh, hf], dtype=np.float32)
         self._scratch = CommitScratch(len(self._pad))
+        self._cells = np.empty(ny * nx, dtype=np.int64)  # the compiled traversal's output
 
     @property
     def blocked(self) -> np.ndarray:
@@ -469,8 +470,10 @@ class LiveGrid:
         # (compiled path: free cells saturated at l_min are skipped, one more l_free leaves
         # them, their floor, state and counts as they are; a return in them is added below)
         skip = (self.log_odds.reshape(-1), self.config.l_min) if self._use_kernel else None
-        free = free_cells(segment_columns(np.full(len(r), u0), np.full(len(r), v0), u1, v1, ny, nx), mark,
-                          self._stamp, self._use_kernel, skip)
+        free = scan_free_cells(u0, v0, u1, v1, self.shape, mark, skip, self._cells) if self._use_kernel else None
+        if free is None:
+            free = free_cells(segment_columns(np.full(len(r), u0), np.full(len(r), v0), u1, v1, ny, nx), mark,
+                              self._stamp, self._use_kernel, skip)
         ei = np.floor(v1[hit]).astype(np.int64)
         ej = np.floor(u1[hit]).astype(np.int64)
         ein = (ei >= 0) & (ei < ny) & (ej >= 0) & (ej < nx)

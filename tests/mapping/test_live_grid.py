@@ -407,3 +407,35 @@ def test_the_grid_update_falls_back_to_numpy_without_a_compiler(tmp_path, monkey
         assert np.array_equal(np.sort(got.state_changed), np.sort(up.state_changed))
     assert np.array_equal(slow.log_odds, fast.log_odds) and np.array_equal(slow._pad, fast._pad)
     assert not (tmp_path / "cache").exists()
+
+
+def test_compiled_scan_traversal_equals_segment_columns_and_free_cells():
+    """scan_free_cells (clipping and set-up in C) against the NumPy segment_columns +
+    free_cells: the same distinct cells and marks for fans from points inside, on cell
+    corners and outside the grid, axis-parallel and zero-length beams, with and without
+    skipping cells at a given value."""
+    from sanav_mj.mapping.beam_kernel import free_cells, kernel_available, scan_free_cells
+    from sanav_mj.mapping.live_grid import segment_columns
+
+    if not kernel_available():
+        pytest.skip("no C compiler: only the NumPy traversal exists")
+    rng = np.random.default_rng(8)
+    ny, nx = 41, 67
+    values = np.where(rng.random(ny * nx) < 0.3, np.float32(-1.0), np.float32(0.5)).astype(np.float32)
+    origins = [(rng.uniform(0, nx), rng.uniform(0, ny)) for _ in range(6)] + [(10.0, 20.0), (-4.2, 13.3),
+                                                                              (nx + 3.0, ny + 0.5), (0.0, 0.0)]
+    for u0, v0 in origins:
+        a = np.concatenate([rng.uniform(-np.pi, np.pi, 300), np.arange(8) * np.pi / 4])
+        r = np.concatenate([rng.uniform(0, 90, 300), rng.uniform(0, 30, 8)])
+        r[:5] = 0.0
+        u1, v1 = u0 + r * np.cos(a), v0 + r * np.sin(a)
+        u1[5:10] = np.round(u1[5:10])  # ends on cell corners
+        for skip in (None, (values, -1.0)):
+            mark_ref, mark = np.zeros(ny * nx, np.int8), np.zeros(ny * nx, np.int8)
+            want = free_cells(segment_columns(np.full(len(a), u0), np.full(len(a), v0), u1, v1, ny, nx), mark_ref,
+                              use_kernel=False, skip=skip)
+            got = scan_free_cells(u0, v0, u1, v1, (ny, nx), mark, skip)
+            assert len(got) == len(np.unique(got)) and np.array_equal(np.sort(got), np.sort(want))
+            assert np.array_equal(mark, mark_ref) and len(got) > 0
+            if skip is not None:
+                assert not np.any(values[got] == np.float32(-1.0))
