@@ -170,10 +170,64 @@ static int cmp_i64(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
+/* As spread below, for many cells: over the cells' bounding window grown by r at once, the
+   kernel as row runs (rows[2q] = row offset, rows[2q+1] = half width), each run a +d / -d
+   pair in a per-row difference array, then one prefix sum per window row. Returns -1 when
+   the work buffer cannot be allocated (the caller then spreads cell by cell). */
+static int64_t spread_dense(int64_t n, const int64_t *cells, const int8_t *d, int64_t ny, int64_t nx, int64_t r,
+                            int64_t pw, int64_t nrows, const int64_t *rows, int32_t *pad, int64_t *out,
+                            int64_t h0, int64_t h1, int64_t w0, int64_t w1)
+{
+    const int64_t hh = h1 - h0 + 2 * r, ww = w1 - w0 + 2 * r;  /* padded rows h0 .. h0+hh, cols w0 .. w0+ww */
+    int32_t *diff = calloc((size_t)(hh * (ww + 1)), sizeof(int32_t));
+    if (!diff) return -1;
+    for (int64_t i = 0; i < n; ++i) {
+        const int64_t ci = cells[i] / nx - h0 + r, cj = cells[i] % nx - w0 + r;  /* window coordinates */
+        for (int64_t q = 0; q < nrows; ++q) {
+            int32_t *row = diff + (ci + rows[2 * q]) * (ww + 1);
+            row[cj - rows[2 * q + 1]] += d[i];
+            row[cj + rows[2 * q + 1] + 1] -= d[i];
+        }
+    }
+    int64_t m = 0;
+    for (int64_t a = 0; a < hh; ++a) {
+        int32_t acc = 0;
+        const int32_t *row = diff + a * (ww + 1);
+        int32_t *p = pad + (h0 + a) * pw + w0;
+        for (int64_t b = 0; b < ww; ++b) {
+            acc += row[b];
+            if (!acc) continue;
+            const int32_t before = p[b];
+            p[b] = before + acc;
+            if ((before == 0) != (p[b] == 0)) {
+                const int64_t pr = h0 + a - r, pc = w0 + b - r;
+                if (pr >= 0 && pr < ny && pc >= 0 && pc < nx) out[m++] = pr * nx + pc;
+            }
+        }
+    }
+    free(diff);
+    return m;
+}
+
 static int64_t spread(int64_t n, const int64_t *cells, const int8_t *d, int64_t ny, int64_t nx, int64_t r,
                       int64_t pw, int64_t K, const int64_t *koff, int32_t *pad, int8_t *seen, int64_t *list,
-                      int64_t *out)
+                      int64_t *out, int64_t nrows, const int64_t *rows)
 {
+    if (n > 0) {
+        int64_t h0 = ny, h1 = 0, w0 = nx, w1 = 0;
+        for (int64_t i = 0; i < n; ++i) {
+            const int64_t ci = cells[i] / nx, cj = cells[i] % nx;
+            if (ci < h0) h0 = ci;
+            if (ci + 1 > h1) h1 = ci + 1;
+            if (cj < w0) w0 = cj;
+            if (cj + 1 > w1) w1 = cj + 1;
+        }
+        const int64_t area = (h1 - h0 + 2 * r) * (w1 - w0 + 2 * r);
+        if (n * K > 2 * (nrows * n + area)) {
+            const int64_t m = spread_dense(n, cells, d, ny, nx, r, pw, nrows, rows, pad, out, h0, h1, w0, w1);
+            if (m >= 0) return m;
+        }
+    }
     int64_t L = 0;
     for (int64_t i = 0; i < n; ++i) {
         const int64_t centre = (cells[i] / nx + r) * pw + cells[i] % nx + r;
@@ -211,7 +265,8 @@ static int64_t spread(int64_t n, const int64_t *cells, const int8_t *d, int64_t 
 void sanav_commit(int64_t T, const int64_t *touched, int8_t *mark, float *lo, float *floor_, const float *par,
                   int64_t has_floor, int64_t ny, int64_t nx, int64_t r, int64_t pw, int64_t K, const int64_t *koff,
                   int32_t *pad, int32_t *route, int64_t *state_out, int64_t *safe_out, int64_t *route_out,
-                  int64_t *n_out, int64_t *cells_tmp, int8_t *d_tmp, int8_t *seen, int64_t *list)
+                  int64_t *n_out, int64_t *cells_tmp, int8_t *d_tmp, int8_t *seen, int64_t *list, int64_t nrows,
+                  const int64_t *rows)
 {
     const float delta[3] = {0.0f, par[0], par[1]};
     const float l_min = par[2], l_max = par[3], ft = par[4], ot = par[5], hf = par[6];
@@ -250,10 +305,11 @@ void sanav_commit(int64_t T, const int64_t *touched, int8_t *mark, float *lo, fl
     for (int64_t i = 0; i < ns; ++i)
         if (cells_tmp[i] >= 0) { cells_tmp[nf] = cells_tmp[i]; d_tmp[nf] = d_tmp[i]; ++nf; }
     n_out[0] = ns;
-    n_out[1] = spread(nf, cells_tmp, d_tmp, ny, nx, r, pw, K, koff, pad, seen, list, safe_out);
+    n_out[1] = spread(nf, cells_tmp, d_tmp, ny, nx, r, pw, K, koff, pad, seen, list, safe_out, nrows, rows);
     /* the route cells go through cells_tmp as well (safe_out is done with it) */
     for (int64_t i = 0; i < nr; ++i) { cells_tmp[i] = route_out[i]; d_tmp[i] = d_tmp[T + i]; }
-    n_out[2] = spread(nr, cells_tmp, d_tmp, ny, nx, r, pw, K, koff, route, seen, list, route_out);
+    n_out[2] = spread(nr, cells_tmp, d_tmp, ny, nx, r, pw, K, koff, route, seen, list, route_out, nrows,
+                      rows);
 }
 """
 
@@ -295,7 +351,8 @@ def _load() -> ctypes.CDLL | None:
                   + [ctypes.c_void_p] * 3 + [ctypes.c_float])
     g = lib.sanav_commit
     g.restype = None
-    g.argtypes = ([ctypes.c_int64] + [ctypes.c_void_p] * 5 + [ctypes.c_int64] * 6 + [ctypes.c_void_p] * 11)
+    g.argtypes = ([ctypes.c_int64] + [ctypes.c_void_p] * 5 + [ctypes.c_int64] * 6 + [ctypes.c_void_p] * 11
+                  + [ctypes.c_int64, ctypes.c_void_p])
     _lib = lib
     return _lib
 
@@ -457,7 +514,7 @@ class CommitScratch:
 
 def commit_cells(touched: np.ndarray, mark: np.ndarray, log_odds: np.ndarray, floor: np.ndarray,
                  params: np.ndarray, has_floor: bool, shape: tuple[int, int], r: int, koff: np.ndarray,
-                 pad: np.ndarray, route: np.ndarray, scratch: CommitScratch
+                 pad: np.ndarray, route: np.ndarray, scratch: CommitScratch, rows: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The log-odds update and count spreading of :meth:`LiveGrid._commit
     <sanav_mj.mapping.live_grid.LiveGrid._commit>` in one compiled call, or None without the
@@ -475,6 +532,9 @@ def commit_cells(touched: np.ndarray, mark: np.ndarray, log_odds: np.ndarray, fl
         pad, route: ((ny + 2r) * (nx + 2r),) int32 counts of non-free and of route-blocking
             cells within the kernel, updated in place.
         scratch: work arrays for this grid.
+        rows: (Q, 2) int64 the kernel as row runs ``(row offset, half width)`` (the same
+            cells as ``koff``): many changed cells are then spread over their bounding
+            window by row runs instead of cell by offset. None: always by offset.
 
     Returns:
         (state_changed, safe_changed, route_changed) int64 flat indices as
@@ -506,5 +566,6 @@ def commit_cells(touched: np.ndarray, mark: np.ndarray, log_odds: np.ndarray, fl
                      params.ctypes.data, int(has_floor), ny, nx, r, nx + 2 * r, len(koff), koff.ctypes.data,
                      pad.ctypes.data, route.ctypes.data, state_out.ctypes.data, safe_out.ctypes.data,
                      route_out.ctypes.data, n.ctypes.data, cells_tmp.ctypes.data, scratch.d.ctypes.data,
-                     scratch.seen.ctypes.data, scratch.list.ctypes.data)
+                     scratch.seen.ctypes.data, scratch.list.ctypes.data, 0 if rows is None else len(rows),
+                     None if rows is None else np.ascontiguousarray(rows, dtype=np.int64).ctypes.data)
     return state_out[:n[0]].copy(), safe_out[:n[1]].copy(), route_out[:n[2]].copy()

@@ -331,6 +331,7 @@ class LiveGrid:
                                  config.occ_thresh, hf], dtype=np.float32)
         self._scratch = CommitScratch(len(self._pad))
         self._cells = np.empty(ny * nx, dtype=np.int64)  # the compiled traversal's output
+        self._rows_arr = np.array(self._rows, dtype=np.int64).reshape(-1, 2)
 
     @property
     def blocked(self) -> np.ndarray:
@@ -490,7 +491,7 @@ class LiveGrid:
         if self._use_kernel and self._use_commit_kernel:  # compiled: one pass, no temporaries
             got = commit_cells(touched, mark, self.log_odds.reshape(-1), self._floor, self._params,
                                self.config.hit_floor is not None, self.shape, self._r, self._koff, self._pad,
-                               self._route, self._scratch)
+                               self._route, self._scratch, self._rows_arr)
             if got is not None:
                 return MapUpdate(*got)
         lo = self.log_odds.reshape(-1)
