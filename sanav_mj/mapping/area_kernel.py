@@ -1,6 +1,6 @@
 """Compiled loops of the incremental safe areas (:mod:`sanav_mj.mapping.incremental`), with NumPy fallbacks.
 
-Three small C functions do, in one call each, what the NumPy code of
+Small C functions do, in one call each, what the NumPy code of
 :class:`~sanav_mj.mapping.incremental.IncrementalSafeAreas` does in tens of array calls
 per scan (each a few microseconds of overhead on arrays of a few dozen entries):
 
@@ -8,10 +8,15 @@ per scan (each a few microseconds of overhead on arrays of a few dozen entries):
 * :func:`tile_leaves`: the free quadtree leaves of the dirty tiles, from the pyramid (depth
   first per tile; the NumPy path goes level by level: the same leaves in another order,
   and the merge that follows depends on the set only);
-* :func:`touching_pairs`: the graph edges of new rectangles (sides on one grid line whose
-  spans overlap by a positive length) by a double loop over the new and nearby rectangles.
+* :func:`link_edges`: the graph edges of new rectangles (sides on one grid line whose
+  spans overlap by a positive length) by a double loop over the new and nearby rectangles;
+* :func:`slots_meeting`, :func:`clean_pieces`, :func:`merge_boxes`, :func:`snapshot`: the
+  rectangles meeting dirty tiles, their parts in clean tiles, the full-edge merge and the
+  compact arrays for the planner.
 
-All integer arithmetic: the results are exactly those of the NumPy code (tested against it).
+All integer arithmetic, but the snapshot's world coordinates, weights and portals (the same
+double operations as NumPy, no fused multiply-add): the results are exactly those of the
+NumPy code (tested against it).
 The source is compiled once into the solver-code cache by :func:`sanav_mj.native.compile_cached`
 (``$SANAV_MJ_CACHE`` or ``~/.cache/sanav-mj``) and loaded with :mod:`ctypes`; without a C
 compiler, when compiling fails, or with ``SANAV_MJ_NO_CKERNEL=1``, every function here returns
@@ -76,27 +81,6 @@ int64_t sanav_tile_leaves(int64_t n, const int64_t *tiles, int64_t ntx, int64_t 
     return m;
 }
 
-/* Pairs (a, b) of a new box a (na boxes) and a candidate box b (nb) that touch: a side of
-   a and the opposite side of b on one grid line, their spans overlapping by > 0. A pair of
-   two new boxes (b_new[k] = index of candidate k among the new ones, else -1) is reported
-   once, from its lower new index. Writes (a index, b index) pairs to out; returns the count. */
-int64_t sanav_touching(int64_t na, const int64_t *a, int64_t nb, const int64_t *b, const int64_t *b_new,
-                       int64_t *out)
-{
-    int64_t m = 0;
-    for (int64_t x = 0; x < na; ++x) {
-        const int64_t *p = a + 4 * x;
-        for (int64_t y = 0; y < nb; ++y) {
-            const int64_t *q = b + 4 * y;
-            if (b_new[y] >= 0 && b_new[y] <= x) continue;
-            const int side = (p[3] == q[1] || p[1] == q[3]) && p[0] < q[2] && q[0] < p[2];  /* rows overlap */
-            const int over = (p[2] == q[0] || p[0] == q[2]) && p[1] < q[3] && q[1] < p[3];  /* columns */
-            if (side || over) { out[2 * m] = x; out[2 * m + 1] = y; ++m; }
-        }
-    }
-    return m;
-}
-
 /* Slots (ascending) of the alive boxes meeting a dirty tile (dirty: nty x ntx bytes, tile
    edge 2^lt cells), into out; returns their number. */
 int64_t sanav_meeting(int64_t cap, const uint8_t *alive, const int64_t *boxes, int64_t lt, const uint8_t *dirty,
@@ -134,6 +118,47 @@ int64_t sanav_pieces(int64_t n, const int64_t *boxes, int64_t lt, const uint8_t 
                 o[3] = b[3] < (c + 1) * t ? b[3] : (c + 1) * t;
             }
     }
+    return m;
+}
+
+/* The edges of the n new slots: every alive slot whose box meets the new boxes' bounding
+   box grown by one cell is a candidate; a new box and a candidate touch when a side of one
+   and the opposite side of the other lie on one grid line with spans overlapping by > 0.
+   Pairs (low slot, high slot) into out, each once; pos (cap, all -1) and cand (cap) are
+   scratch (pos left all -1). Returns the number of pairs. */
+int64_t sanav_link(int64_t n, const int64_t *slots, int64_t cap, const uint8_t *alive, const int64_t *boxes,
+                   int64_t *pos, int64_t *cand, int64_t *out)
+{
+    if (n == 0) return 0;
+    int64_t lo_i = INT64_MAX, hi_i = INT64_MIN, lo_j = INT64_MAX, hi_j = INT64_MIN;
+    for (int64_t x = 0; x < n; ++x) {
+        const int64_t *p = boxes + 4 * slots[x];
+        if (p[0] < lo_i) lo_i = p[0];
+        if (p[2] > hi_i) hi_i = p[2];
+        if (p[1] < lo_j) lo_j = p[1];
+        if (p[3] > hi_j) hi_j = p[3];
+        pos[slots[x]] = x;
+    }
+    int64_t nc = 0;
+    for (int64_t s = 0; s < cap; ++s) {
+        if (!alive[s]) continue;
+        const int64_t *q = boxes + 4 * s;
+        if (q[0] <= hi_i && q[2] >= lo_i && q[1] <= hi_j && q[3] >= lo_j) cand[nc++] = s;
+    }
+    int64_t m = 0;
+    for (int64_t x = 0; x < n; ++x) {
+        const int64_t sa = slots[x];
+        const int64_t *p = boxes + 4 * sa;
+        for (int64_t y = 0; y < nc; ++y) {
+            const int64_t sb = cand[y];
+            if (pos[sb] >= 0 && pos[sb] <= x) continue;  /* a new pair: from its lower index only */
+            const int64_t *q = boxes + 4 * sb;
+            const int side = (p[3] == q[1] || p[1] == q[3]) && p[0] < q[2] && q[0] < p[2];
+            const int over = (p[2] == q[0] || p[0] == q[2]) && p[1] < q[3] && q[1] < p[3];
+            if (side || over) { out[2 * m] = sa < sb ? sa : sb; out[2 * m + 1] = sa < sb ? sb : sa; ++m; }
+        }
+    }
+    for (int64_t x = 0; x < n; ++x) pos[slots[x]] = -1;
     return m;
 }
 
@@ -282,12 +307,12 @@ def _load() -> ctypes.CDLL | None:
     lib.sanav_pyramid_add.argtypes = [i64, ptr, ptr, i64, i64, ptr, i64]
     lib.sanav_tile_leaves.restype = i64
     lib.sanav_tile_leaves.argtypes = [i64, ptr, i64, i64, i64, i64, i64, ptr, i64, ptr]
-    lib.sanav_touching.restype = i64
-    lib.sanav_touching.argtypes = [i64, ptr, i64, ptr, ptr, ptr]
     lib.sanav_meeting.restype = i64
     lib.sanav_meeting.argtypes = [i64, ptr, ptr, i64, ptr, i64, ptr]
     lib.sanav_pieces.restype = i64
     lib.sanav_pieces.argtypes = [i64, ptr, i64, ptr, i64, ptr]
+    lib.sanav_link.restype = i64
+    lib.sanav_link.argtypes = [i64, ptr, i64, ptr, ptr, ptr, ptr, ptr]
     lib.sanav_merge.restype = i64
     lib.sanav_merge.argtypes = [i64, ptr]
     lib.sanav_snapshot.restype = i64
@@ -353,30 +378,6 @@ def tile_leaves(pyr: Pyramid, tiles: np.ndarray, ntx: int, tile: int, shape: tup
     m = lib.sanav_tile_leaves(len(tiles), tiles.ctypes.data, ntx, lt, shape[0], shape[1], min_cell,
                               pyr.ptrs.ctypes.data, pyr.width, out.ctypes.data)
     return out[:m]
-
-
-def touching_pairs(a: np.ndarray, b: np.ndarray, b_new: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """Index pairs of touching boxes (a side of ``a[x]`` and the opposite side of ``b[y]`` on
-    one grid line, spans overlapping by a positive length); None without the kernel.
-
-    Args:
-        a: (NA, 4) int64 new boxes ``[i0, j0, i1, j1)``.
-        b: (NB, 4) int64 candidate boxes (may include the new ones).
-        b_new: (NB,) int64 index of candidate ``y`` in ``a`` when it is one of the new boxes,
-            else -1; such pairs are reported once (from the lower index of ``a``).
-
-    Returns:
-        (x, y): (P,) int64 indices into ``a`` and ``b``.
-    """
-    lib = _load()
-    if lib is None:
-        return None
-    a = np.ascontiguousarray(a, dtype=np.int64)
-    b = np.ascontiguousarray(b, dtype=np.int64)
-    b_new = np.ascontiguousarray(b_new, dtype=np.int64)
-    out = np.empty((len(a) * len(b), 2), dtype=np.int64)
-    m = lib.sanav_touching(len(a), a.ctypes.data, len(b), b.ctypes.data, b_new.ctypes.data, out.ctypes.data)
-    return out[:m, 0], out[:m, 1]
 
 
 def _dirty_bytes(dirty: np.ndarray) -> np.ndarray:
@@ -469,3 +470,34 @@ def snapshot(alive: np.ndarray, boxes: np.ndarray, edges: np.ndarray, base: int,
                        float(origin[0]), float(origin[1]), float(resolution), out_b.ctypes.data, out_r.ctypes.data,
                        out_e.ctypes.data, out_w.ctypes.data, out_p.ctypes.data, kv.ctypes.data, index.ctypes.data)
     return out_b, out_r, out_e, out_w, out_p
+
+
+def link_edges(slots: np.ndarray, alive: np.ndarray, boxes: np.ndarray, scratch: dict) -> np.ndarray | None:
+    """(P, 2) int64 edges (low slot, high slot) between the new ``slots`` and every alive box
+    they touch (sides on one grid line, spans overlapping by a positive length), each once;
+    None without the kernel.
+
+    Args:
+        slots: (N,) int64 slots of the new boxes (alive, in ``boxes``).
+        alive: (cap,) bool; boxes: (cap, 4) int64 slot boxes.
+        scratch: a dict kept by the caller between calls (work arrays of the slot capacity).
+    """
+    lib = _load()
+    if lib is None:
+        return None
+    cap = len(alive)
+    if alive.dtype != np.bool_ or boxes.dtype != np.int64 or not boxes.flags.c_contiguous or len(boxes) != cap:
+        raise ValueError(f"alive (cap,) bool and boxes (cap, 4) int64 expected, got {alive.dtype} {alive.shape}, "
+                         f"{boxes.dtype} {boxes.shape}")
+    slots = np.ascontiguousarray(slots, dtype=np.int64)
+    if scratch.get("cap") != cap:
+        scratch["cap"] = cap
+        scratch["pos"] = np.full(cap, -1, dtype=np.int64)
+        scratch["cand"] = np.empty(cap, dtype=np.int64)
+    b = boxes[slots]
+    # a box touches at most one neighbour per cell along its sides
+    bound = int(2 * ((b[:, 2] - b[:, 0]) + (b[:, 3] - b[:, 1])).sum())
+    out = np.empty((bound, 2), dtype=np.int64)
+    m = lib.sanav_link(len(slots), slots.ctypes.data, cap, alive.ctypes.data, boxes.ctypes.data,
+                       scratch["pos"].ctypes.data, scratch["cand"].ctypes.data, out.ctypes.data)
+    return out[:m]

@@ -96,6 +96,7 @@ class IncrementalSafeAreas:
         self.occupied = occ.copy()
         self._use_kernel = True  # the compiled loops when available (False: NumPy, the reference)
         self._pyr = area_kernel.Pyramid(self._levels)
+        self._link_scratch: dict = {}  # work arrays of area_kernel.link_edges
         self.boxes = np.zeros((0, 4), dtype=np.int64)
         self.alive = np.zeros(0, dtype=bool)
         self.edges = np.zeros((0, 2), dtype=np.int64)
@@ -340,20 +341,17 @@ class IncrementalSafeAreas:
         """Add the edges between the new rectangles and every rectangle they touch."""
         if not len(slots):
             return
+        if self._use_kernel:
+            got = area_kernel.link_edges(slots, self.alive, self.boxes, self._link_scratch)
+            if got is not None:
+                self.edges = np.concatenate([self.edges, got])
+                return
         # candidates: alive rectangles meeting the new ones' bounding box grown by one cell
         alive = np.flatnonzero(self.alive)
         cb = self.boxes[alive]
         near = ((cb[:, 0] <= boxes[:, 2].max()) & (cb[:, 2] >= boxes[:, 0].min())
                 & (cb[:, 1] <= boxes[:, 3].max()) & (cb[:, 3] >= boxes[:, 1].min()))
         cand, cb = alive[near], cb[near]
-        if self._use_kernel:
-            pos = np.full(len(self.alive), -1, dtype=np.int64)
-            pos[slots] = np.arange(len(slots))
-            got = area_kernel.touching_pairs(boxes, cb, pos[cand])
-            if got is not None:
-                a, b = slots[got[0]], cand[got[1]]
-                self.edges = np.concatenate([self.edges, np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)])
-                return
         base = max(self.shape) + 2
         a_parts, b_parts = [], []
         # (far side of a, span of a) against (near side of b, span of b), both orientations

@@ -176,7 +176,9 @@ def test_the_areas_fall_back_to_numpy_without_the_kernel(monkeypatch):
     occ = rng.random((40, 50)) < 0.2
     inc = IncrementalSafeAreas(_grid(occ.copy()), tile=8)
     assert area_kernel.tile_leaves(inc._pyr, np.arange(2), inc._ntx, 8, inc.shape, 1) is None
-    assert area_kernel.touching_pairs(np.zeros((1, 4), np.int64), np.zeros((1, 4), np.int64), np.zeros(1)) is None
+    assert area_kernel.link_edges(np.zeros(1, np.int64), inc.alive, inc.boxes, {}) is None
+    assert area_kernel.merge_boxes(np.zeros((1, 4), np.int64)) is None
+    assert area_kernel.snapshot(inc.alive, inc.boxes, inc.edges, 51, (0.0, 0.0), 0.05) is None
     assert not area_kernel.pyramid_add(inc._pyr, np.zeros(1, np.int64), np.ones(1, np.int32), 50)
     for _ in range(5):
         cells = _blob(rng, occ.shape, 80)
