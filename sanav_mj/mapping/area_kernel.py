@@ -162,6 +162,51 @@ int64_t sanav_link(int64_t n, const int64_t *slots, int64_t cap, const uint8_t *
     return m;
 }
 
+/* Apply the n cell values (0/1) to the occupied grid; each cell that changes adds +-1 along
+   its pyramid ancestors and makes its tile dirty (dirty: nty x ntx bytes, all 0 on entry).
+   A cell listed twice must have one value (the later entries then change nothing). Writes
+   the dirty tiles, ascending, to tiles; returns their number. */
+static int cmp_i64(const void *x, const void *y)
+{
+    const int64_t a = *(const int64_t *)x, b = *(const int64_t *)y;
+    return (a > b) - (a < b);
+}
+
+int64_t sanav_apply_cells(int64_t n, const int64_t *cells, const uint8_t *values, uint8_t *occupied, int64_t nx,
+                          int64_t L, const int64_t *levels, int64_t width, int64_t ntx, uint8_t *dirty,
+                          int64_t *tiles)
+{
+    const int64_t lt = L - 1;
+    int64_t m = 0;
+    for (int64_t k = 0; k < n; ++k) {
+        const int64_t c = cells[k];
+        const uint8_t v = values[k] != 0;
+        if (occupied[c] == v) continue;
+        occupied[c] = v;
+        const int32_t d = v ? 1 : -1;
+        const int64_t i = c / nx, j = c % nx;
+        for (int64_t l = 0; l < L; ++l)
+            ((int32_t *)(intptr_t)levels[l])[(i >> l) * (width >> l) + (j >> l)] += d;
+        const int64_t t = (i >> lt) * ntx + (j >> lt);
+        if (!dirty[t]) { dirty[t] = 1; tiles[m++] = t; }
+    }
+    qsort(tiles, (size_t)m, sizeof(int64_t), cmp_i64);
+    return m;
+}
+
+/* Keep the E edges whose two slots are alive (in place, order kept); returns their number. */
+int64_t sanav_drop_edges(int64_t E, int64_t *edges, const uint8_t *alive)
+{
+    int64_t m = 0;
+    for (int64_t k = 0; k < E; ++k)
+        if (alive[edges[2 * k]] && alive[edges[2 * k + 1]]) {
+            edges[2 * m] = edges[2 * k];
+            edges[2 * m + 1] = edges[2 * k + 1];
+            ++m;
+        }
+    return m;
+}
+
 typedef struct { int64_t i0, j0, i1, j1; } box_t;
 
 static int cmp3(int64_t a0, int64_t a1, int64_t a2, int64_t b0, int64_t b1, int64_t b2)
@@ -313,6 +358,10 @@ def _load() -> ctypes.CDLL | None:
     lib.sanav_pieces.argtypes = [i64, ptr, i64, ptr, i64, ptr]
     lib.sanav_link.restype = i64
     lib.sanav_link.argtypes = [i64, ptr, i64, ptr, ptr, ptr, ptr, ptr]
+    lib.sanav_apply_cells.restype = i64
+    lib.sanav_apply_cells.argtypes = [i64, ptr, ptr, ptr, i64, i64, ptr, i64, i64, ptr, ptr]
+    lib.sanav_drop_edges.restype = i64
+    lib.sanav_drop_edges.argtypes = [i64, ptr, ptr]
     lib.sanav_merge.restype = i64
     lib.sanav_merge.argtypes = [i64, ptr]
     lib.sanav_snapshot.restype = i64
@@ -501,3 +550,45 @@ def link_edges(slots: np.ndarray, alive: np.ndarray, boxes: np.ndarray, scratch:
     m = lib.sanav_link(len(slots), slots.ctypes.data, cap, alive.ctypes.data, boxes.ctypes.data,
                        scratch["pos"].ctypes.data, scratch["cand"].ctypes.data, out.ctypes.data)
     return out[:m]
+
+
+def apply_cells(pyr: Pyramid, cells: np.ndarray, values: np.ndarray, occupied: np.ndarray, nx: int, ntx: int,
+                dirty: np.ndarray) -> np.ndarray | None:
+    """Write the cells' new values into ``occupied``, update the pyramid along the cells that
+    changed and mark their tiles in ``dirty``; None (nothing done) without the kernel.
+
+    Args:
+        pyr: the count pyramid (its levels' count is the tile's level + 1).
+        cells: (K,) int64 flat indices; values: (K,) bool (a repeated cell: one value).
+        occupied: (ny, nx) bool grid, updated in place.
+        nx: grid columns; ntx: tiles a row.
+        dirty: (nty, ntx) bool, all False on entry.
+
+    Returns:
+        (T,) int64 ascending flat indices of the dirty tiles.
+    """
+    lib = _load()
+    if lib is None:
+        return None
+    dirty = _dirty_bytes(dirty)
+    if occupied.dtype != np.bool_ or not occupied.flags.c_contiguous:
+        raise ValueError(f"occupied must be a contiguous bool array, got {occupied.dtype}")
+    cells = np.ascontiguousarray(cells, dtype=np.int64)
+    values = np.ascontiguousarray(values, dtype=np.bool_)
+    tiles = np.empty(dirty.size, dtype=np.int64)
+    m = lib.sanav_apply_cells(len(cells), cells.ctypes.data, values.ctypes.data, occupied.ctypes.data, nx,
+                              len(pyr.levels), pyr.ptrs.ctypes.data, pyr.width, ntx, dirty.ctypes.data,
+                              tiles.ctypes.data)
+    return tiles[:m]
+
+
+def drop_dead_edges(edges: np.ndarray, alive: np.ndarray) -> np.ndarray | None:
+    """The rows of ``edges`` ((E, 2) int64 slot pairs, compacted in place) whose slots are
+    both alive, as a view; None without the kernel."""
+    lib = _load()
+    if lib is None:
+        return None
+    if edges.dtype != np.int64 or not edges.flags.c_contiguous or alive.dtype != np.bool_:
+        raise ValueError(f"edges (E, 2) int64 contiguous and alive bool expected, got {edges.dtype}, {alive.dtype}")
+    m = lib.sanav_drop_edges(len(edges), edges.ctypes.data, alive.ctypes.data)
+    return edges[:m]

@@ -139,6 +139,14 @@ class IncrementalSafeAreas:
         if new.shape != cells.shape:
             raise ValueError(f"values must have one entry per cell ({cells.size}), got {new.size}")
         ny, nx = self.shape
+        if self._use_kernel:  # compiled: a handful of calls instead of about a hundred
+            dirty = np.zeros((self._nty, self._ntx), dtype=bool)
+            tiles = area_kernel.apply_cells(self._pyr, cells, new, self.occupied, nx, self._ntx, dirty)
+            if tiles is not None:
+                if tiles.size:
+                    removed = area_kernel.slots_meeting(self.alive, self.boxes, self.tile, dirty)
+                    self._rebuild_tiles(tiles, removed, dirty)
+                return int(tiles.size)
         mine = self.occupied.reshape(-1)
         diff = new != mine[cells]
         cells, new = cells[diff], new[diff]
@@ -296,9 +304,10 @@ class IncrementalSafeAreas:
         return np.stack([np.maximum(bk[:, 0], ta * t), np.maximum(bk[:, 1], tc * t),
                          np.minimum(bk[:, 2], (ta + 1) * t), np.minimum(bk[:, 3], (tc + 1) * t)], axis=1)
 
-    def _rebuild_tiles(self, tiles: np.ndarray, removed: np.ndarray) -> None:
-        dirty = np.zeros((self._nty, self._ntx), dtype=bool)
-        dirty.reshape(-1)[tiles] = True
+    def _rebuild_tiles(self, tiles: np.ndarray, removed: np.ndarray, dirty: np.ndarray | None = None) -> None:
+        if dirty is None:
+            dirty = np.zeros((self._nty, self._ntx), dtype=bool)
+            dirty.reshape(-1)[tiles] = True
         pieces = self._pieces(removed, dirty)
         leaves = self._leaves(tiles)
         local = np.concatenate([pieces, leaves])
@@ -310,10 +319,13 @@ class IncrementalSafeAreas:
         # free the removed slots and their edges
         if len(removed):
             self.alive[removed] = False
-            dead = np.zeros(len(self.alive), dtype=bool)
-            dead[removed] = True
-            e = self.edges
-            self.edges = e[~(dead[e[:, 0]] | dead[e[:, 1]])]
+            kept = area_kernel.drop_dead_edges(self.edges, self.alive) if self._use_kernel else None
+            if kept is None:
+                dead = np.zeros(len(self.alive), dtype=bool)
+                dead[removed] = True
+                e = self.edges
+                kept = e[~(dead[e[:, 0]] | dead[e[:, 1]])]
+            self.edges = kept
             self._free_slots.extend(removed.tolist())
         slots = self._take_slots(len(new))
         self.boxes[slots] = new
