@@ -104,8 +104,11 @@ static void clip_axis(double p, double q, double hi, double *t0, double *t1)
 /* segment_columns (sanav_mj/mapping/live_grid.py, the same operations in the same order,
    per segment) and sanav_free_cells in one call, for B beams from (u0, v0) to (u1[b], v1[b])
    [cells] on an ny x nx grid. Returns the number of cells appended to out, or -1. */
+static int cmp_i64(const void *a, const void *b);
+
 int64_t sanav_scan_cells(int64_t B, double u0, double v0, const double *u1, const double *v1, int64_t ny,
-                         int64_t nx, int8_t *mark, int64_t *out, const float *skip_lo, float skip_at)
+                         int64_t nx, int8_t *mark, int64_t *out, const float *skip_lo, float skip_at,
+                         const uint8_t *hit)
 {
     const double eps = 1e-9;
     const int64_t size = ny * nx;
@@ -154,6 +157,18 @@ int64_t sanav_scan_cells(int64_t B, double u0, double v0, const double *u1, cons
             }
             entry = ex;
         }
+    }
+    if (hit) {  /* the cells of the returns: marked 2; those no beam crossed appended, sorted */
+        const int64_t m0 = m;
+        for (int64_t b = 0; b < B; ++b) {
+            if (!hit[b]) continue;
+            const int64_t ei = (int64_t)floor(v1[b]), ej = (int64_t)floor(u1[b]);
+            if (ei < 0 || ei >= ny || ej < 0 || ej >= nx) continue;
+            const int64_t c = ei * nx + ej;
+            if (mark[c] == 0) out[m++] = c;
+            mark[c] = 2;
+        }
+        qsort(out + m0, (size_t)(m - m0), sizeof(int64_t), cmp_i64);
     }
     return m;
 }
@@ -348,13 +363,31 @@ def _load() -> ctypes.CDLL | None:
     h = lib.sanav_scan_cells
     h.restype = ctypes.c_int64
     h.argtypes = ([ctypes.c_int64, ctypes.c_double, ctypes.c_double] + [ctypes.c_void_p] * 2 + [ctypes.c_int64] * 2
-                  + [ctypes.c_void_p] * 3 + [ctypes.c_float])
+                  + [ctypes.c_void_p] * 3 + [ctypes.c_float, ctypes.c_void_p])
     g = lib.sanav_commit
     g.restype = None
     g.argtypes = ([ctypes.c_int64] + [ctypes.c_void_p] * 5 + [ctypes.c_int64] * 6 + [ctypes.c_void_p] * 11
                   + [ctypes.c_int64, ctypes.c_void_p])
     _lib = lib
     return _lib
+
+
+_addresses: dict[int, tuple[np.ndarray, int]] = {}
+
+
+def buffer_address(a: np.ndarray) -> int:
+    """The data address of a long-lived array (a grid's buffers, kept between scans), cached:
+    ``a.ctypes.data`` costs about 2 us a call, and a scan passes some 40 buffers to C. The
+    cache keeps the array alive (so its id is not reused while cached); it is emptied when
+    it holds 512 arrays. Not for short-lived arrays: they would be kept alive until then."""
+    hit = _addresses.get(id(a))
+    if hit is not None and hit[0] is a:
+        return hit[1]
+    if len(_addresses) >= 512:
+        _addresses.clear()
+    addr = a.ctypes.data
+    _addresses[id(a)] = (a, addr)
+    return addr
 
 
 def kernel_available() -> bool:
@@ -444,8 +477,8 @@ def expand_columns(seg: dict) -> np.ndarray:
 
 
 def scan_free_cells(u0: float, v0: float, u1: np.ndarray, v1: np.ndarray, shape: tuple[int, int],
-                    mark: np.ndarray, skip: tuple[np.ndarray, float] | None = None, out: np.ndarray | None = None
-                    ) -> np.ndarray | None:
+                    mark: np.ndarray, skip: tuple[np.ndarray, float] | None = None, out: np.ndarray | None = None,
+                    hit: np.ndarray | None = None) -> np.ndarray | None:
     """:func:`free_cells` of :func:`~sanav_mj.mapping.live_grid.segment_columns` for beams
     from one point, in one compiled call (the clipping and set-up per beam in C, with the
     same operations); None without the kernel.
@@ -457,9 +490,15 @@ def scan_free_cells(u0: float, v0: float, u1: np.ndarray, v1: np.ndarray, shape:
         mark, skip: as :func:`free_cells`.
         out: (ny * nx,) int64 buffer for the result (each cell appears at most once), kept
             by the caller between scans; None: allocated.
+        hit: (B,) bool, True where the beam returned: the cells of those end points
+            (``floor`` of ``v1``, ``u1``, inside the grid) are then marked 2, and those no
+            beam crossed (nor skipped) are appended to the result, sorted (as
+            :meth:`LiveGrid.integrate <sanav_mj.mapping.live_grid.LiveGrid.integrate>` adds
+            them in NumPy). None: no returns.
 
     Returns:
-        (U,) int64 distinct flat indices (a view of ``out``), marked 1 in ``mark``; or None.
+        (U,) int64 distinct flat indices (a view of ``out``): the crossed cells, marked 1 in
+        ``mark``, then the return cells no beam crossed; or None.
     """
     lib = _load()
     if lib is None:
@@ -478,9 +517,15 @@ def scan_free_cells(u0: float, v0: float, u1: np.ndarray, v1: np.ndarray, shape:
         out = np.empty(ny * nx, dtype=np.int64)
     elif not (out.dtype == np.int64 and out.flags.c_contiguous and out.size >= ny * nx):
         raise ValueError(f"out must be a contiguous int64 array of >= {ny * nx} cells, got {out.dtype} {out.shape}")
+    if hit is not None:
+        hit = np.ascontiguousarray(hit, dtype=np.bool_)
+        if hit.shape != u1.shape:
+            raise ValueError(f"hit must be (B,) = {u1.shape} like u1, got {hit.shape}")
     m = lib.sanav_scan_cells(len(u1), float(u0), float(v0), u1.ctypes.data, v1.ctypes.data, ny, nx,
-                             mark.ctypes.data, out.ctypes.data, None if skip is None else skip[0].ctypes.data,
-                             0.0 if skip is None else float(np.float32(skip[1])))
+                             buffer_address(mark), buffer_address(out),
+                             None if skip is None else buffer_address(skip[0]),
+                             0.0 if skip is None else float(np.float32(skip[1])),
+                             None if hit is None else hit.ctypes.data)
     if m < 0:
         raise IndexError(f"beam traversal left the grid of {mark.size} cells")
     return out[:m]
@@ -523,7 +568,9 @@ def commit_cells(touched: np.ndarray, mark: np.ndarray, log_odds: np.ndarray, fl
     Args:
         touched: (T,) int64 distinct flat grid indices to update.
         mark: (ny * nx,) int8, 1 (crossed) or 2 (hit) on ``touched``; reset to 0 there.
-        log_odds, floor: (ny * nx,) float32 log-odds and per-cell lower clamp, updated in place.
+        log_odds, floor: (ny * nx,) or (ny, nx) float32 log-odds and per-cell lower clamp,
+            updated in place (long-lived buffers, as ``mark``, ``pad``, ``route``, ``koff``,
+            ``params`` and ``rows``: their addresses are cached, :func:`buffer_address`).
         params: (7,) float32 ``l_free, l_occ, l_min, l_max, free_thresh, occ_thresh, hit_floor``.
         has_floor: apply ``hit_floor`` (False: plain clamping).
         shape: (ny, nx) grid shape.
@@ -548,9 +595,13 @@ def commit_cells(touched: np.ndarray, mark: np.ndarray, log_odds: np.ndarray, fl
     T = len(touched)
     for name, a, dt in (("touched", touched, np.int64), ("mark", mark, np.int8), ("log_odds", log_odds, np.float32),
                         ("floor", floor, np.float32), ("params", params, np.float32), ("koff", koff, np.int64),
-                        ("pad", pad, np.int32), ("route", route, np.int32)):
+                        ("pad", pad, np.int32), ("route", route, np.int32)) + (() if rows is None else
+                                                                             (("rows", rows, np.int64),)):
         if a.dtype != dt or not a.flags.c_contiguous:
             raise ValueError(f"commit_cells: {name} must be a contiguous {np.dtype(dt)} array, got {a.dtype}")
+    if not (mark.size == log_odds.size == floor.size == ny * nx):
+        raise ValueError(f"commit_cells: mark, log_odds and floor must have {ny * nx} cells, got {mark.size}, "
+                         f"{log_odds.size}, {floor.size}")
     if len(pad) != scratch.padded_size or len(route) != scratch.padded_size:
         raise ValueError(f"commit_cells: pad and route must have {scratch.padded_size} cells, got "
                          f"{len(pad)}, {len(route)}")
@@ -562,10 +613,10 @@ def commit_cells(touched: np.ndarray, mark: np.ndarray, log_odds: np.ndarray, fl
     safe_out = out[2 * T:2 * T + spread]
     route_out = out[2 * T + spread:2 * T + 2 * spread]
     n = scratch.n
-    lib.sanav_commit(T, touched.ctypes.data, mark.ctypes.data, log_odds.ctypes.data, floor.ctypes.data,
-                     params.ctypes.data, int(has_floor), ny, nx, r, nx + 2 * r, len(koff), koff.ctypes.data,
-                     pad.ctypes.data, route.ctypes.data, state_out.ctypes.data, safe_out.ctypes.data,
-                     route_out.ctypes.data, n.ctypes.data, cells_tmp.ctypes.data, scratch.d.ctypes.data,
-                     scratch.seen.ctypes.data, scratch.list.ctypes.data, 0 if rows is None else len(rows),
-                     None if rows is None else np.ascontiguousarray(rows, dtype=np.int64).ctypes.data)
+    ad = buffer_address
+    base = ad(out)  # state_out, cells_tmp, safe_out, route_out: consecutive parts of out
+    lib.sanav_commit(T, touched.ctypes.data, ad(mark), ad(log_odds), ad(floor), ad(params), int(has_floor), ny, nx,
+                     r, nx + 2 * r, len(koff), ad(koff), ad(pad), ad(route), base, base + 8 * (2 * T),
+                     base + 8 * (2 * T + spread), ad(n), base + 8 * T, ad(scratch.d), ad(scratch.seen),
+                     ad(scratch.list), 0 if rows is None else len(rows), None if rows is None else ad(rows))
     return state_out[:n[0]].copy(), safe_out[:n[1]].copy(), route_out[:n[2]].copy()

@@ -469,12 +469,14 @@ class LiveGrid:
         mark = self._mark
         # the cells crossed before the beams' ends, each once, marked 1 (compiled loop, or NumPy)
         # (compiled path: free cells saturated at l_min are skipped, one more l_free leaves
-        # them, their floor, state and counts as they are; a return in them is added below)
-        skip = (self.log_odds.reshape(-1), self.config.l_min) if self._use_kernel else None
-        free = scan_free_cells(u0, v0, u1, v1, self.shape, mark, skip, self._cells) if self._use_kernel else None
-        if free is None:
-            free = free_cells(segment_columns(np.full(len(r), u0), np.full(len(r), v0), u1, v1, ny, nx), mark,
-                              self._stamp, self._use_kernel, skip)
+        # them, their floor, state and counts as they are; a return in them is still added)
+        if self._use_kernel:  # compiled: crossed cells, then the return cells no beam crossed
+            touched = scan_free_cells(u0, v0, u1, v1, self.shape, mark, (self.log_odds, self.config.l_min),
+                                      self._cells, hit)
+            if touched is not None:
+                return self._commit(touched, None)  # touched: read only during the call
+        free = free_cells(segment_columns(np.full(len(r), u0), np.full(len(r), v0), u1, v1, ny, nx), mark,
+                          self._stamp, False)
         ei = np.floor(v1[hit]).astype(np.int64)
         ej = np.floor(u1[hit]).astype(np.int64)
         ein = (ei >= 0) & (ei < ny) & (ej >= 0) & (ej < nx)
@@ -485,15 +487,17 @@ class LiveGrid:
 
     def _commit(self, touched: np.ndarray, occ: np.ndarray) -> MapUpdate:
         """Apply the log-odds increments ``mark`` selects (1 crossed, 2 hit) to the distinct
-        ``touched`` cells (``occ``: the hit cells, repeats allowed), reset ``mark`` there and
-        update the safe and route counts."""
+        ``touched`` cells (``occ``: the hit cells, repeats allowed; None: those marked 2),
+        reset ``mark`` there and update the safe and route counts."""
         mark = self._mark
         if self._use_kernel and self._use_commit_kernel:  # compiled: one pass, no temporaries
-            got = commit_cells(touched, mark, self.log_odds.reshape(-1), self._floor, self._params,
+            got = commit_cells(touched, mark, self.log_odds, self._floor, self._params,
                                self.config.hit_floor is not None, self.shape, self._r, self._koff, self._pad,
                                self._route, self._scratch, self._rows_arr)
             if got is not None:
                 return MapUpdate(*got)
+        if occ is None:
+            occ = touched[mark[touched] == 2]
         lo = self.log_odds.reshape(-1)
         old = lo[touched]
         c = self.config

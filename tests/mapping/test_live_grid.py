@@ -439,3 +439,15 @@ def test_compiled_scan_traversal_equals_segment_columns_and_free_cells():
             assert np.array_equal(mark, mark_ref) and len(got) > 0
             if skip is not None:
                 assert not np.any(values[got] == np.float32(-1.0))
+            # with returns: the cells of the hit ends marked 2, those not crossed appended, sorted
+            hit = rng.random(len(a)) < 0.6
+            mark2 = np.zeros(ny * nx, np.int8)
+            got2 = scan_free_cells(u0, v0, u1, v1, (ny, nx), mark2, skip, hit=hit)
+            ei, ej = np.floor(v1[hit]).astype(np.int64), np.floor(u1[hit]).astype(np.int64)
+            ein = (ei >= 0) & (ei < ny) & (ej >= 0) & (ej < nx)
+            occ = (ei * nx + ej)[ein]
+            extra = np.unique(occ[mark_ref[occ] == 0])
+            assert np.array_equal(got2[:len(got)], got) and np.array_equal(got2[len(got):], extra)
+            expect = mark_ref.copy()
+            expect[occ] = 2
+            assert np.array_equal(mark2, expect)
