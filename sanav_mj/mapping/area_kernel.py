@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sanav_mj.mapping.beam_kernel import NO_KERNEL_ENV, buffer_address
+from sanav_mj.mapping.beam_kernel import NO_KERNEL_ENV, address, buffer_address
 from sanav_mj.native import CompileError, NoCompilerError, compile_cached
 
 _SOURCE = r"""
@@ -390,8 +390,8 @@ class Pyramid:
                 raise ValueError(f"pyramid level {d} must be a contiguous int32 array, got {lv.dtype}")
         self.levels = levels
         self.width = int(levels[0].shape[1])
-        self.ptrs = np.array([lv.ctypes.data for lv in levels], dtype=np.int64)
-        self.ptrs_address = self.ptrs.ctypes.data
+        self.ptrs = np.array([address(lv) for lv in levels], dtype=np.int64)
+        self.ptrs_address = address(self.ptrs)
 
 
 def pyramid_add(pyr: Pyramid, cells: np.ndarray, delta: np.ndarray, nx: int) -> bool:
@@ -408,7 +408,7 @@ def pyramid_add(pyr: Pyramid, cells: np.ndarray, delta: np.ndarray, nx: int) -> 
         return False
     cells = np.ascontiguousarray(cells, dtype=np.int64)
     delta = np.ascontiguousarray(delta, dtype=np.int32)
-    lib.sanav_pyramid_add(len(cells), cells.ctypes.data, delta.ctypes.data, nx, len(pyr.levels),
+    lib.sanav_pyramid_add(len(cells), address(cells), address(delta), nx, len(pyr.levels),
                           pyr.ptrs_address, pyr.width)
     return True
 
@@ -425,8 +425,8 @@ def tile_leaves(pyr: Pyramid, tiles: np.ndarray, ntx: int, tile: int, shape: tup
     if len(pyr.levels) != lt + 1:
         raise ValueError(f"the pyramid needs {lt + 1} levels for tiles of {tile} cells, got {len(pyr.levels)}")
     out = np.empty((len(tiles) * tile * tile, 4), dtype=np.int64)
-    m = lib.sanav_tile_leaves(len(tiles), tiles.ctypes.data, ntx, lt, shape[0], shape[1], min_cell,
-                              pyr.ptrs_address, pyr.width, out.ctypes.data)
+    m = lib.sanav_tile_leaves(len(tiles), address(tiles), ntx, lt, shape[0], shape[1], min_cell,
+                              pyr.ptrs_address, pyr.width, address(out))
     return out[:m]
 
 
@@ -452,7 +452,7 @@ def slots_meeting(alive: np.ndarray, boxes: np.ndarray, tile: int, dirty: np.nda
                          f"{boxes.dtype} {boxes.shape}")
     out = np.empty(len(alive), dtype=np.int64)
     m = lib.sanav_meeting(len(alive), buffer_address(alive), buffer_address(boxes), int(tile).bit_length() - 1,
-                          dirty.ctypes.data, dirty.shape[1], out.ctypes.data)
+                          address(dirty), dirty.shape[1], address(out))
     return out[:m]
 
 
@@ -467,7 +467,7 @@ def clean_pieces(boxes: np.ndarray, tile: int, dirty: np.ndarray) -> np.ndarray 
     lt = int(tile).bit_length() - 1
     spans = (((boxes[:, 2] - 1) >> lt) - (boxes[:, 0] >> lt) + 1) * (((boxes[:, 3] - 1) >> lt) - (boxes[:, 1] >> lt) + 1)
     out = np.empty((int(spans.sum()), 4), dtype=np.int64)
-    m = lib.sanav_pieces(len(boxes), boxes.ctypes.data, lt, dirty.ctypes.data, dirty.shape[1], out.ctypes.data)
+    m = lib.sanav_pieces(len(boxes), address(boxes), lt, address(dirty), dirty.shape[1], address(out))
     return out[:m]
 
 
@@ -482,7 +482,7 @@ def merge_boxes(boxes: np.ndarray) -> np.ndarray | None:
     if lib is None:
         return None
     b = np.array(boxes, dtype=np.int64, order="C", copy=True).reshape(-1, 4)
-    m = lib.sanav_merge(len(b), b.ctypes.data)
+    m = lib.sanav_merge(len(b), address(b))
     return b[:m]
 
 
@@ -516,9 +516,9 @@ def snapshot(alive: np.ndarray, boxes: np.ndarray, edges: np.ndarray, base: int,
     out_p = np.empty((E, 2, 2))
     kv = np.empty(2 * max(cap, E), dtype=np.int64)
     index = np.empty(cap, dtype=np.int64)
-    lib.sanav_snapshot(cap, buffer_address(alive), buffer_address(boxes), E, edges.ctypes.data, int(base),
-                       float(origin[0]), float(origin[1]), float(resolution), out_b.ctypes.data, out_r.ctypes.data,
-                       out_e.ctypes.data, out_w.ctypes.data, out_p.ctypes.data, kv.ctypes.data, index.ctypes.data)
+    lib.sanav_snapshot(cap, buffer_address(alive), buffer_address(boxes), E, address(edges), int(base),
+                       float(origin[0]), float(origin[1]), float(resolution), address(out_b), address(out_r),
+                       address(out_e), address(out_w), address(out_p), address(kv), address(index))
     return out_b, out_r, out_e, out_w, out_p
 
 
@@ -548,8 +548,8 @@ def link_edges(slots: np.ndarray, alive: np.ndarray, boxes: np.ndarray, scratch:
     # a box touches at most one neighbour per cell along its sides
     bound = int(2 * ((b[:, 2] - b[:, 0]) + (b[:, 3] - b[:, 1])).sum())
     out = np.empty((bound, 2), dtype=np.int64)
-    m = lib.sanav_link(len(slots), slots.ctypes.data, cap, buffer_address(alive), buffer_address(boxes),
-                       buffer_address(scratch["pos"]), buffer_address(scratch["cand"]), out.ctypes.data)
+    m = lib.sanav_link(len(slots), address(slots), cap, buffer_address(alive), buffer_address(boxes),
+                       buffer_address(scratch["pos"]), buffer_address(scratch["cand"]), address(out))
     return out[:m]
 
 
@@ -577,9 +577,9 @@ def apply_cells(pyr: Pyramid, cells: np.ndarray, values: np.ndarray, occupied: n
     cells = np.ascontiguousarray(cells, dtype=np.int64)
     values = np.ascontiguousarray(values, dtype=np.bool_)
     tiles = np.empty(dirty.size, dtype=np.int64)
-    m = lib.sanav_apply_cells(len(cells), cells.ctypes.data, values.ctypes.data, buffer_address(occupied), nx,
-                              len(pyr.levels), pyr.ptrs_address, pyr.width, ntx, dirty.ctypes.data,
-                              tiles.ctypes.data)
+    m = lib.sanav_apply_cells(len(cells), address(cells), address(values), buffer_address(occupied), nx,
+                              len(pyr.levels), pyr.ptrs_address, pyr.width, ntx, address(dirty),
+                              address(tiles))
     return tiles[:m]
 
 
@@ -591,5 +591,5 @@ def drop_dead_edges(edges: np.ndarray, alive: np.ndarray) -> np.ndarray | None:
         return None
     if edges.dtype != np.int64 or not edges.flags.c_contiguous or alive.dtype != np.bool_:
         raise ValueError(f"edges (E, 2) int64 contiguous and alive bool expected, got {edges.dtype}, {alive.dtype}")
-    m = lib.sanav_drop_edges(len(edges), edges.ctypes.data, buffer_address(alive))
+    m = lib.sanav_drop_edges(len(edges), address(edges), buffer_address(alive))
     return edges[:m]
