@@ -244,8 +244,14 @@ int64_t sanav_merge(int64_t n, int64_t *boxes)
         for (int64_t k = 0; k < n; ++k) {
             if (w > 0) {
                 box_t *p = b + w - 1;
-                if (axis == 1 && p->i0 == b[k].i0 && p->i1 == b[k].i1 && p->j1 == b[k].j0) { p->j1 = b[k].j1; continue; }
-                if (axis == 0 && p->j0 == b[k].j0 && p->j1 == b[k].j1 && p->i1 == b[k].i0) { p->i1 = b[k].i1; continue; }
+                if (axis == 1 && p->i0 == b[k].i0 && p->i1 == b[k].i1 && p->j1 == b[k].j0) {
+                    p->j1 = b[k].j1;
+                    continue;
+                }
+                if (axis == 0 && p->j0 == b[k].j0 && p->j1 == b[k].j1 && p->i1 == b[k].i0) {
+                    p->i1 = b[k].i1;
+                    continue;
+                }
             }
             b[w++] = b[k];
         }
@@ -465,7 +471,8 @@ def clean_pieces(boxes: np.ndarray, tile: int, dirty: np.ndarray) -> np.ndarray 
     dirty = _dirty_bytes(dirty)
     boxes = np.ascontiguousarray(boxes, dtype=np.int64)
     lt = int(tile).bit_length() - 1
-    spans = (((boxes[:, 2] - 1) >> lt) - (boxes[:, 0] >> lt) + 1) * (((boxes[:, 3] - 1) >> lt) - (boxes[:, 1] >> lt) + 1)
+    rows = ((boxes[:, 2] - 1) >> lt) - (boxes[:, 0] >> lt) + 1
+    spans = rows * (((boxes[:, 3] - 1) >> lt) - (boxes[:, 1] >> lt) + 1)
     out = np.empty((int(spans.sum()), 4), dtype=np.int64)
     m = lib.sanav_pieces(len(boxes), address(boxes), lt, address(dirty), dirty.shape[1], address(out))
     return out[:m]
