@@ -17,8 +17,10 @@ parameters (270 deg, 541 beams, 10 m, 0.02 m noise). Timed per scan, in one run:
 * ``rebuild``: :func:`build_safe_areas` on the same safe grid (quadtree + merge + graph
   from scratch), as the known-map pipeline would have to do after every scan.
 
-Prints median and p90 [ms] of each, the cells changed per scan, the rectangle counts and
-the load average (the machine is shared). Run from the repository root:
+Prints median and p90 [ms] of each, the cells changed per scan, the rectangle counts, the
+load average (the machine is shared) and a digest of the final grid, counts, rectangles and
+edges (run this script with another version of the package on ``PYTHONPATH`` to compare
+timings and check that both compute the same). Run from the repository root:
 
     PYTHONPATH=$PWD python scripts/bench_incremental.py [--maps barn big] [--scans N] [--warmup N] [--tile T]
 """
@@ -26,6 +28,7 @@ the load average (the machine is shared). Run from the repository root:
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import sys
 import time
@@ -141,6 +144,11 @@ def bench(kind: str, scans: int, tile: int, warmup: int, seed: int = 0) -> None:
     print(f"  safe areas, incremental update        {stats(t_upd)}")
     print(f"  safe areas, compact snapshot          {stats(t_snap)}")
     print(f"  safe areas, rebuild (build_safe_areas) {stats(t_reb)}")
+    h = hashlib.sha256()
+    for arr in (g.log_odds, g.blocked, boxes, inc.safe_areas()[1].edges):
+        h.update(np.ascontiguousarray(arr).tobytes())
+    print(f"  digest of the final grid, counts, rectangles and edges: {h.hexdigest()[:16]} "
+          "(equal across versions that compute the same)")
 
 
 def main(argv=None) -> int:

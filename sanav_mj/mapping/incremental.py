@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sanav_mj.mapping import area_kernel
 from sanav_mj.mapping.occupancy import OccupancyGrid
 from sanav_mj.mapping.safe_areas import SafeAreas, merge_rects
 
@@ -93,6 +94,9 @@ class IncrementalSafeAreas:
             p = self._levels[-1]
             self._levels.append(p[0::2, 0::2] + p[1::2, 0::2] + p[0::2, 1::2] + p[1::2, 1::2])
         self.occupied = occ.copy()
+        self._use_kernel = True  # the compiled loops when available (False: NumPy, the reference)
+        self._pyr = area_kernel.Pyramid(self._levels)
+        self._link_scratch: dict = {}  # work arrays of area_kernel.link_edges
         self.boxes = np.zeros((0, 4), dtype=np.int64)
         self.alive = np.zeros(0, dtype=bool)
         self.edges = np.zeros((0, 2), dtype=np.int64)
@@ -135,6 +139,14 @@ class IncrementalSafeAreas:
         if new.shape != cells.shape:
             raise ValueError(f"values must have one entry per cell ({cells.size}), got {new.size}")
         ny, nx = self.shape
+        if self._use_kernel:  # compiled: a handful of calls instead of about a hundred
+            dirty = np.zeros((self._nty, self._ntx), dtype=bool)
+            tiles = area_kernel.apply_cells(self._pyr, cells, new, self.occupied, nx, self._ntx, dirty)
+            if tiles is not None:
+                if tiles.size:
+                    removed = area_kernel.slots_meeting(self.alive, self.boxes, self.tile, dirty)
+                    self._rebuild_tiles(tiles, removed, dirty)
+                return int(tiles.size)
         mine = self.occupied.reshape(-1)
         diff = new != mine[cells]
         cells, new = cells[diff], new[diff]
@@ -145,8 +157,9 @@ class IncrementalSafeAreas:
         mine[cells] = new
         delta = np.where(new, 1, -1).astype(np.int32)
         i, j = np.divmod(cells, nx)
-        for d, lvl in enumerate(self._levels):
-            np.add.at(lvl, (i >> d, j >> d), delta)
+        if not (self._use_kernel and area_kernel.pyramid_add(self._pyr, cells, delta, nx)):
+            for d, lvl in enumerate(self._levels):
+                np.add.at(lvl, (i >> d, j >> d), delta)
         tiles = np.unique((i >> self._lt) * self._ntx + (j >> self._lt))
         self._rebuild_tiles(tiles, self._slots_meeting(tiles))
         return int(tiles.size)
@@ -170,9 +183,14 @@ class IncrementalSafeAreas:
                 metres; edges sorted; weights and portals as
                 :func:`~sanav_mj.mapping.safe_areas.connectivity` computes them).
         """
+        base = max(self.shape) + 1
+        if self._use_kernel:
+            got = area_kernel.snapshot(self.alive, self.boxes, self.edges, base, self.origin, self.resolution)
+            if got is not None:
+                b, rects, e, weights, portals = got
+                return b, SafeAreas(rects=rects, edges=e, weights=weights, portals=portals)
         slots = np.flatnonzero(self.alive)
         b = self.boxes[slots]
-        base = max(self.shape) + 1
         order = np.argsort(b[:, 0] * base + b[:, 1])
         slots, b = slots[order], b[order]
         index = np.full(len(self.alive), -1, dtype=np.int64)
@@ -204,6 +222,12 @@ class IncrementalSafeAreas:
         """Alive slots whose rectangle meets any of the given tiles."""
         t = self.tile
         ti, tj = np.divmod(tiles, self._ntx)
+        if self._use_kernel:
+            dirty = np.zeros((self._nty, self._ntx), dtype=bool)
+            dirty[ti, tj] = True
+            got = area_kernel.slots_meeting(self.alive, self.boxes, t, dirty)
+            if got is not None:
+                return got
         slots = np.flatnonzero(self.alive)
         b = self.boxes[slots]
         # prefilter with the dirty tiles' bounding box
@@ -225,8 +249,13 @@ class IncrementalSafeAreas:
         return np.unique(slots[k[hit]])
 
     def _leaves(self, tiles: np.ndarray) -> np.ndarray:
-        """Free quadtree leaves (cell boxes) of the given tiles, from the count pyramid."""
+        """Free quadtree leaves (cell boxes) of the given tiles, from the count pyramid
+        (compiled: depth first per tile; NumPy: level by level; the same leaves)."""
         ny, nx = self.shape
+        if self._use_kernel:
+            got = area_kernel.tile_leaves(self._pyr, tiles, self._ntx, self.tile, self.shape, self.min_cell)
+            if got is not None:
+                return got
         ti, tj = np.divmod(tiles, self._ntx)
         i0 = ti.astype(np.int64) * self.tile
         j0 = tj.astype(np.int64) * self.tile
@@ -257,6 +286,10 @@ class IncrementalSafeAreas:
         if not len(slots):
             return np.zeros((0, 4), dtype=np.int64)
         b = self.boxes[slots]
+        if self._use_kernel:
+            got = area_kernel.clean_pieces(b, self.tile, dirty)
+            if got is not None:
+                return got
         lt, t = self._lt, self.tile
         a0, a1 = b[:, 0] >> lt, (b[:, 2] - 1) >> lt
         c0, c1 = b[:, 1] >> lt, (b[:, 3] - 1) >> lt
@@ -271,20 +304,28 @@ class IncrementalSafeAreas:
         return np.stack([np.maximum(bk[:, 0], ta * t), np.maximum(bk[:, 1], tc * t),
                          np.minimum(bk[:, 2], (ta + 1) * t), np.minimum(bk[:, 3], (tc + 1) * t)], axis=1)
 
-    def _rebuild_tiles(self, tiles: np.ndarray, removed: np.ndarray) -> None:
-        dirty = np.zeros((self._nty, self._ntx), dtype=bool)
-        dirty.reshape(-1)[tiles] = True
+    def _rebuild_tiles(self, tiles: np.ndarray, removed: np.ndarray, dirty: np.ndarray | None = None) -> None:
+        if dirty is None:
+            dirty = np.zeros((self._nty, self._ntx), dtype=bool)
+            dirty.reshape(-1)[tiles] = True
         pieces = self._pieces(removed, dirty)
         leaves = self._leaves(tiles)
         local = np.concatenate([pieces, leaves])
-        new = merge_rects(local) if len(local) else local.reshape(0, 4)
+        new = None
+        if self._use_kernel and len(local):
+            new = area_kernel.merge_boxes(local)
+        if new is None:
+            new = merge_rects(local) if len(local) else local.reshape(0, 4)
         # free the removed slots and their edges
         if len(removed):
             self.alive[removed] = False
-            dead = np.zeros(len(self.alive), dtype=bool)
-            dead[removed] = True
-            e = self.edges
-            self.edges = e[~(dead[e[:, 0]] | dead[e[:, 1]])]
+            kept = area_kernel.drop_dead_edges(self.edges, self.alive) if self._use_kernel else None
+            if kept is None:
+                dead = np.zeros(len(self.alive), dtype=bool)
+                dead[removed] = True
+                e = self.edges
+                kept = e[~(dead[e[:, 0]] | dead[e[:, 1]])]
+            self.edges = kept
             self._free_slots.extend(removed.tolist())
         slots = self._take_slots(len(new))
         self.boxes[slots] = new
@@ -312,6 +353,11 @@ class IncrementalSafeAreas:
         """Add the edges between the new rectangles and every rectangle they touch."""
         if not len(slots):
             return
+        if self._use_kernel:
+            got = area_kernel.link_edges(slots, self.alive, self.boxes, self._link_scratch)
+            if got is not None:
+                self.edges = np.concatenate([self.edges, got])
+                return
         # candidates: alive rectangles meeting the new ones' bounding box grown by one cell
         alive = np.flatnonzero(self.alive)
         cb = self.boxes[alive]

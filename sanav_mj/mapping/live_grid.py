@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sanav_mj.mapping.beam_kernel import expand_columns, free_cells
+from sanav_mj.mapping.beam_kernel import CommitScratch, commit_cells, expand_columns, free_cells, scan_free_cells
 from sanav_mj.mapping.occupancy import OccupancyGrid, grid_shape
 
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
@@ -322,8 +322,16 @@ class LiveGrid:
         self._mark = np.zeros(ny * nx, dtype=np.int8)
         self._stamp = np.zeros(ny * nx, dtype=np.int64)  # scratch of the NumPy traversal
         self._use_kernel = True  # the compiled traversal when available (False: NumPy, for tests)
+        self._use_commit_kernel = True  # the compiled log-odds commit when available (False: NumPy)
         self._floor = np.full(ny * nx, config.l_min, dtype=np.float32)  # per-cell lower clamp
         self._delta = np.array([0.0, config.l_free, config.l_occ], dtype=np.float32)
+        # the compiled commit's parameters, float32 as NumPy compares float32 cells with them
+        hf = config.l_min if config.hit_floor is None else config.hit_floor
+        self._params = np.array([config.l_free, config.l_occ, config.l_min, config.l_max, config.free_thresh,
+                                 config.occ_thresh, hf], dtype=np.float32)
+        self._scratch = CommitScratch(len(self._pad))
+        self._cells = np.empty(ny * nx, dtype=np.int64)  # the compiled traversal's output
+        self._rows_arr = np.array(self._rows, dtype=np.int64).reshape(-1, 2)
 
     @property
     def blocked(self) -> np.ndarray:
@@ -460,8 +468,15 @@ class LiveGrid:
         v1 = v0 + r * np.sin(a) / h
         mark = self._mark
         # the cells crossed before the beams' ends, each once, marked 1 (compiled loop, or NumPy)
+        # (compiled path: free cells saturated at l_min are skipped, one more l_free leaves
+        # them, their floor, state and counts as they are; a return in them is still added)
+        if self._use_kernel:  # compiled: crossed cells, then the return cells no beam crossed
+            touched = scan_free_cells(u0, v0, u1, v1, self.shape, mark, (self.log_odds, self.config.l_min),
+                                      self._cells, hit)
+            if touched is not None:
+                return self._commit(touched, None)  # touched: read only during the call
         free = free_cells(segment_columns(np.full(len(r), u0), np.full(len(r), v0), u1, v1, ny, nx), mark,
-                          self._stamp, self._use_kernel)
+                          self._stamp, False)
         ei = np.floor(v1[hit]).astype(np.int64)
         ej = np.floor(u1[hit]).astype(np.int64)
         ein = (ei >= 0) & (ei < ny) & (ej >= 0) & (ej < nx)
@@ -491,9 +506,17 @@ class LiveGrid:
 
     def _commit(self, touched: np.ndarray, occ: np.ndarray) -> MapUpdate:
         """Apply the log-odds increments ``mark`` selects (1 crossed, 2 hit) to the distinct
-        ``touched`` cells (``occ``: the hit cells, repeats allowed), reset ``mark`` there and
-        update the safe and route counts."""
+        ``touched`` cells (``occ``: the hit cells, repeats allowed; None: those marked 2),
+        reset ``mark`` there and update the safe and route counts."""
         mark = self._mark
+        if self._use_kernel and self._use_commit_kernel:  # compiled: one pass, no temporaries
+            got = commit_cells(touched, mark, self.log_odds, self._floor, self._params,
+                               self.config.hit_floor is not None, self.shape, self._r, self._koff, self._pad,
+                               self._route, self._scratch, self._rows_arr)
+            if got is not None:
+                return MapUpdate(*got)
+        if occ is None:
+            occ = touched[mark[touched] == 2]
         lo = self.log_odds.reshape(-1)
         old = lo[touched]
         c = self.config

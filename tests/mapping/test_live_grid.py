@@ -347,3 +347,107 @@ def test_the_compiled_traversal_lands_in_the_cache_folder(tmp_path, monkeypatch)
     monkeypatch.setenv("SANAV_MJ_CACHE", str(tmp_path / "cache"))
     assert beam_kernel.kernel_available()
     assert [p.name[:6] for p in (tmp_path / "cache").iterdir()] == ["beams_"]
+
+
+@pytest.mark.parametrize("config, inflation", [(LiveGridConfig(), 0.23), (LiveGridConfig(hit_floor=None), 0.23),
+                                               (LiveGridConfig(l_free=-0.7, l_occ=2.0, l_min=-2.0), 0.0)])
+def test_compiled_commit_equals_the_numpy_commit(config, inflation):
+    """The compiled log-odds commit and count spreading (sanav_commit) against the NumPy
+    reference, from the same traversal: the same state changes in the same order, the same
+    sorted safe / route flips, bit-identical log-odds, floors and counts, over scans that
+    change thousands of cells at once (the first) and a few (later, saturated cells), with
+    and without the hit floor."""
+    from sanav_mj.mapping.beam_kernel import kernel_available
+
+    if not kernel_available():
+        pytest.skip("no C compiler: only the NumPy commit exists")
+    rng = np.random.default_rng(11)
+    grids = [LiveGrid((0.0, 0.0, 8.05, 5.0), 0.05, inflation, config) for _ in range(2)]
+    grids[1]._use_commit_kernel = False
+    angles = np.linspace(-2.3, 2.3, 271)
+    n_big = n_flips = 0
+    for k in range(14):
+        room = (0.2, 0.2, rng.uniform(3.0, 7.9), 4.8)
+        pose = (rng.uniform(0.5, 2.8), rng.uniform(0.5, 4.5), rng.uniform(-np.pi, np.pi))
+        ranges, hit = room_scan(pose, angles, room, max_range=rng.uniform(1.5, 6.0))
+        ranges = ranges + rng.normal(0.0, 0.03, len(ranges)) * hit  # returns spread over cells
+        ups = [g.integrate(pose[:2], pose[2], ranges, hit, angles) for g in grids]
+        assert np.array_equal(ups[0].state_changed, ups[1].state_changed)
+        assert np.array_equal(ups[0].safe_changed, ups[1].safe_changed)
+        assert np.array_equal(ups[0].route_changed, ups[1].route_changed)
+        for a in ("log_odds", "_floor", "_pad", "_route", "_mark"):
+            assert np.array_equal(getattr(grids[0], a), getattr(grids[1], a)), a
+        n_big += ups[0].state_changed.size > 1000
+        n_flips += ups[0].safe_changed.size
+    assert n_big >= 1 and n_flips > 0
+    assert np.count_nonzero(grids[0].safe()) > 100
+
+
+def test_the_grid_update_falls_back_to_numpy_without_a_compiler(tmp_path, monkeypatch):
+    """Without a C compiler LiveGrid.integrate runs the NumPy traversal and commit and gives
+    the grid the compiled path gives."""
+    from sanav_mj.mapping import beam_kernel
+
+    angles = np.linspace(-2.3, 2.3, 181)
+    scans = [((1.0 + 0.2 * k, 2.0, 0.3 * k), *room_scan((1.0 + 0.2 * k, 2.0, 0.3 * k), angles, (0.2, 0.2, 5.5, 3.8),
+                                                        max_range=4.0)) for k in range(5)]
+    fast = LiveGrid((0.0, 0.0, 6.05, 4.0), 0.05, 0.23)
+    ups_fast = [fast.integrate(p[:2], p[2], r, h, angles) for p, r, h in scans]
+    monkeypatch.setattr(beam_kernel, "_lib", None)
+    monkeypatch.setattr(beam_kernel, "_tried", False)
+    monkeypatch.setenv("SANAV_MJ_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("CC", "/nonexistent/cc")
+    slow = LiveGrid((0.0, 0.0, 6.05, 4.0), 0.05, 0.23)
+    assert beam_kernel.commit_cells(np.zeros(0, np.int64), slow._mark, slow.log_odds.reshape(-1), slow._floor,
+                                    slow._params, True, slow.shape, slow._r, slow._koff, slow._pad, slow._route,
+                                    slow._scratch) is None
+    for (p, r, h), up in zip(scans, ups_fast):
+        got = slow.integrate(p[:2], p[2], r, h, angles)
+        assert np.array_equal(got.safe_changed, up.safe_changed)
+        assert np.array_equal(np.sort(got.state_changed), np.sort(up.state_changed))
+    assert np.array_equal(slow.log_odds, fast.log_odds) and np.array_equal(slow._pad, fast._pad)
+    assert not (tmp_path / "cache").exists()
+
+
+def test_compiled_scan_traversal_equals_segment_columns_and_free_cells():
+    """scan_free_cells (clipping and set-up in C) against the NumPy segment_columns +
+    free_cells: the same distinct cells and marks for fans from points inside, on cell
+    corners and outside the grid, axis-parallel and zero-length beams, with and without
+    skipping cells at a given value."""
+    from sanav_mj.mapping.beam_kernel import free_cells, kernel_available, scan_free_cells
+    from sanav_mj.mapping.live_grid import segment_columns
+
+    if not kernel_available():
+        pytest.skip("no C compiler: only the NumPy traversal exists")
+    rng = np.random.default_rng(8)
+    ny, nx = 41, 67
+    values = np.where(rng.random(ny * nx) < 0.3, np.float32(-1.0), np.float32(0.5)).astype(np.float32)
+    origins = [(rng.uniform(0, nx), rng.uniform(0, ny)) for _ in range(6)] + [(10.0, 20.0), (-4.2, 13.3),
+                                                                              (nx + 3.0, ny + 0.5), (0.0, 0.0)]
+    for u0, v0 in origins:
+        a = np.concatenate([rng.uniform(-np.pi, np.pi, 300), np.arange(8) * np.pi / 4])
+        r = np.concatenate([rng.uniform(0, 90, 300), rng.uniform(0, 30, 8)])
+        r[:5] = 0.0
+        u1, v1 = u0 + r * np.cos(a), v0 + r * np.sin(a)
+        u1[5:10] = np.round(u1[5:10])  # ends on cell corners
+        for skip in (None, (values, -1.0)):
+            mark_ref, mark = np.zeros(ny * nx, np.int8), np.zeros(ny * nx, np.int8)
+            want = free_cells(segment_columns(np.full(len(a), u0), np.full(len(a), v0), u1, v1, ny, nx), mark_ref,
+                              use_kernel=False, skip=skip)
+            got = scan_free_cells(u0, v0, u1, v1, (ny, nx), mark, skip)
+            assert len(got) == len(np.unique(got)) and np.array_equal(np.sort(got), np.sort(want))
+            assert np.array_equal(mark, mark_ref) and len(got) > 0
+            if skip is not None:
+                assert not np.any(values[got] == np.float32(-1.0))
+            # with returns: the cells of the hit ends marked 2, those not crossed appended, sorted
+            hit = rng.random(len(a)) < 0.6
+            mark2 = np.zeros(ny * nx, np.int8)
+            got2 = scan_free_cells(u0, v0, u1, v1, (ny, nx), mark2, skip, hit=hit)
+            ei, ej = np.floor(v1[hit]).astype(np.int64), np.floor(u1[hit]).astype(np.int64)
+            ein = (ei >= 0) & (ei < ny) & (ej >= 0) & (ej < nx)
+            occ = (ei * nx + ej)[ein]
+            extra = np.unique(occ[mark_ref[occ] == 0])
+            assert np.array_equal(got2[:len(got)], got) and np.array_equal(got2[len(got):], extra)
+            expect = mark_ref.copy()
+            expect[occ] = 2
+            assert np.array_equal(mark2, expect)
