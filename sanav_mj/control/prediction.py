@@ -44,8 +44,8 @@ class PredictionDerating:
         window: steps over which the largest error is kept (>= 1).
     """
 
-    free: float = 0.01
-    stop: float = 0.06
+    free: float = 0.008
+    stop: float = 0.03
     floor: float = 0.25
     yaw_floor: float = 0.3
     window: int = 20
