@@ -324,7 +324,7 @@ class SAMPC(TrackingMPC):
         super().__init__(robot, config, limits, ocp, adaptation, failure_injector=failure_injector)
         self.position_slack = config.box_margin
         if self.discs is not None and config.footprint_prediction is not None:
-            self.prediction = PredictionMonitor(self.discs.offsets, config.footprint_prediction)
+            self.adaptation.prediction = PredictionMonitor(self.discs.offsets, config.footprint_prediction)
         self._q_sa = np.asarray(config.q_sa, float)
         self.reset(np.array([*self.ref_states[0, :2], self.ref_states[0, 2]]))
         self.build_s = time.perf_counter() - t0

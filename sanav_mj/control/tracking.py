@@ -198,9 +198,6 @@ class TrackingMPC:
             self._p_buf[sl[name]] = np.asarray(w, float)
         self._p_slices = sl
         self._set_accel(limits.a_max)
-        #: :class:`~sanav_mj.control.prediction.PredictionMonitor` derating the bounds by the
-        #: one-step prediction error, or None (default: off).
-        self.prediction = None
 
     # ------------------------------------------------------------ plug-in points
 
@@ -311,8 +308,6 @@ class TrackingMPC:
         """
         self._u_prev = np.zeros(2) if u_prev is None else np.asarray(u_prev, dtype=float).reshape(2).copy()
         self.adaptation.reset()
-        if getattr(self, "prediction", None) is not None:
-            self.prediction.reset()
         if self.accel != self.limits.a_max:
             self._set_accel(self.limits.a_max)
         self._active: ActivePlan | None = None
@@ -340,13 +335,6 @@ class TrackingMPC:
 
     def step(self, obs: Observation) -> Command:
         """Compute the command for the next period from the measured pose (wall time in ``solve_ms``)."""
-        cmd = self._step(obs)
-        if self.prediction is not None:  # what the applied plan predicts for the next effective state
-            pred = cmd.predicted
-            self.prediction.expect(pred[1] if pred is not None and len(pred) > 1 else None)
-        return cmd
-
-    def _step(self, obs: Observation) -> Command:
         t0 = time.perf_counter()
         k_step = self._step_index
         self._step_index += 1
@@ -360,8 +348,6 @@ class TrackingMPC:
             return self._fallback(x_meas, t0, None, "bad_measurement")
         x_meas = self.adaptation.filter(x_meas, obs.velocity)
         x0 = self.adaptation.effective_state(x_meas)
-        if self.prediction is not None:
-            self.prediction.observe(x0)
 
         xr, ur = self.reference(x0)
         if self._turning:
@@ -389,13 +375,10 @@ class TrackingMPC:
         z_lb, z_ub = self.input_bounds()
         fb_lb, fb_ub = z_lb.copy(), z_ub.copy()
         ad = self.adaptation
-        cap = min(ad.speed_cap(con.excursion), ad.residual_cap())
-        wcap = ad.residual_yaw_cap()
-        if self.prediction is not None:  # derating by the one-step prediction error (off by default)
-            cap = min(cap, self.prediction.fraction() * self.limits.v_max)
-            wcap = min(wcap, self.prediction.yaw_fraction() * self.limits.w_max)
+        cap = min(ad.speed_cap(con.excursion), ad.residual_cap(), ad.prediction_cap())
         if cap < self.limits.v_max:
             z_lb = self.derate(z_lb, z_ub, 0, cap)
+        wcap = min(ad.residual_yaw_cap(), ad.prediction_yaw_cap())
         if wcap < self.limits.w_max:
             z_lb = self.derate(z_lb, z_ub, 1, wcap)
         if ad.config.fallback_derated:

@@ -83,10 +83,10 @@ def test_discs_controller_derates_its_bounds_by_the_measured_error():
     cfg = MPCConfig(footprint="discs", adaptation=NO_ADAPTATION,
                     footprint_prediction=PredictionDerating(free=0.01, stop=0.06, floor=0.25, yaw_floor=0.3))
     ctl = _controller(cfg)
-    assert isinstance(ctl.prediction, PredictionMonitor)
+    assert isinstance(ctl.adaptation.prediction, PredictionMonitor)
     steps = _run(ctl, [0.0] * 12 + [0.035, 0.0])
     # nominal: the next effective state is the plan's stage 1, nothing is derated
-    assert ctl.prediction.error == pytest.approx(0.035, abs=1e-12)
+    assert ctl.adaptation.prediction.error == pytest.approx(0.035, abs=1e-12)
     v_max, w_max = ctl.limits.v_max, ctl.limits.w_max
     free_ub = steps[11][1].input_upper  # before the displacement was seen
     assert free_ub[:, 0].max() > 0.625 * v_max + 0.05
@@ -99,5 +99,5 @@ def test_discs_controller_derates_its_bounds_by_the_measured_error():
 
 
 def test_disc_mode_and_discs_without_prediction_have_no_monitor():
-    assert _controller(MPCConfig()).prediction is None
-    assert _controller(MPCConfig(footprint="discs", footprint_prediction=None)).prediction is None
+    assert _controller(MPCConfig()).adaptation.prediction is None
+    assert _controller(MPCConfig(footprint="discs", footprint_prediction=None)).adaptation.prediction is None
