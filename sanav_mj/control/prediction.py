@@ -17,6 +17,14 @@ yaw-rate bounds are lowered by it, like the excursion and residual derating of
 :mod:`sanav_mj.control.adaptation`: none up to ``free``, linear down to ``floor`` at ``stop``.
 A plant the model does not predict is driven slowly, which shrinks both its stopping
 distance and the error per period (the errors measured scale with the speed).
+
+Measured (100 BARN-like worlds, seed 0, margin 0.02 m, defaults ``free`` 0.008 m, ``stop``
+0.03 m): nominally the error stays below ``free`` and every run is identical to the run
+without the derating (79 / 100); at the envelope corner the largest true excursion of a disc
+centre outside every safe area fell from 13.0 to 2.6 cm, the smallest true clearance of the
+footprint rose from 0.1 cm (one collision) to 3.6 cm, 82 / 100 reach the goal (77 before),
+at a mean time of 17.4 s instead of 12.1 s. With ``free`` 0.01 / ``stop`` 0.06 the corner
+still weaved at 1.3 m/s and a grown-chain run collided.
 """
 
 from __future__ import annotations
