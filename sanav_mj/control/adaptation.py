@@ -12,6 +12,10 @@ asks it, every step, for
   :meth:`PlantAdaptation.residual_cap`, :meth:`PlantAdaptation.residual_yaw_cap`);
 - the command actually sent for a planned input (:meth:`PlantAdaptation.send`: gain
   compensation, clipping, recorded in the monitor).
+- in SA-MPC's ``"discs"`` mode, the speed / yaw-rate caps from the one-step prediction error
+  of the footprint (:meth:`PlantAdaptation.prediction_cap`, :mod:`sanav_mj.control.prediction`:
+  :meth:`PlantAdaptation.effective_state` compares the state with what the last planned input
+  predicted, :meth:`PlantAdaptation.send` records the next prediction); off elsewhere.
 
 Robot-derived values (the half track that makes yaw-rate residuals commensurable with
 speeds) come from the robot's parameters. The excursion derating is described in
@@ -223,12 +227,19 @@ class PlantAdaptation:
         self.half_track = 0.5 * float(robot.track)
         self.monitor = ActuationMonitor(config.monitor, half_track=self.half_track)
         self.pose_filter = PoseFilter(self.dt, config.pose_filter) if config.pose_filter is not None else None
+        #: :class:`~sanav_mj.control.prediction.PredictionMonitor` derating the speed and yaw
+        #: rate by the one-step prediction error (SA-MPC sets it in ``"discs"`` mode), or None.
+        self.prediction = None
+        self._x0: np.ndarray | None = None
 
     def reset(self) -> None:
         """Forget the episode (monitor and filter)."""
         self.monitor.reset()
         if self.pose_filter is not None:
             self.pose_filter.reset()
+        if self.prediction is not None:
+            self.prediction.reset()
+        self._x0 = None
 
     def update(self, velocity: np.ndarray | None) -> None:
         """Fold the measured body velocity (2,) [m/s, rad/s] (or None) into the monitor."""
@@ -269,13 +280,23 @@ class PlantAdaptation:
         from sanav_mj.control.unicycle import rollout_np
 
         if not self.config.latency_compensation or self.monitor.delay == 0:
-            return pose
-        pending = self.monitor.pending() * self.monitor.gains
-        return rollout_np(pose, pending, self.dt)[-1]
+            x0 = pose
+        else:
+            pending = self.monitor.pending() * self.monitor.gains
+            x0 = rollout_np(pose, pending, self.dt)[-1]
+        if self.prediction is not None:  # compared with what the last planned input predicted
+            self.prediction.observe(x0)
+            self._x0 = np.array(x0, dtype=float)
+        return x0
 
     def send(self, u: np.ndarray) -> tuple[float, float]:
         """The command (v, w) [m/s, rad/s] sent for the planned input ``u`` (2,); recorded in the monitor."""
         cmd = np.asarray(u, dtype=float).copy()
+        if self.prediction is not None:  # the model's state one period after the state planned from
+            from sanav_mj.control.unicycle import rollout_np
+
+            self.prediction.expect(None if self._x0 is None else rollout_np(self._x0, cmd[None], self.dt)[-1])
+            self._x0 = None
         if self.config.gain_compensation:
             cmd = cmd / self.monitor.gains
         cmd = np.clip(np.nan_to_num(cmd), self.lower, self.upper)
@@ -307,3 +328,11 @@ class PlantAdaptation:
             return self.w_max
         frac = self.residual_cap() / self.v_max
         return self.w_max * max(frac, cfg.residual_yaw_floor)
+
+    def prediction_cap(self) -> float:
+        """[m/s] speed bound from the one-step prediction error (:attr:`prediction`; ``v_max`` without it)."""
+        return self.v_max if self.prediction is None else self.v_max * self.prediction.fraction()
+
+    def prediction_yaw_cap(self) -> float:
+        """[rad/s] yaw-rate bound from the one-step prediction error (``w_max`` without it)."""
+        return self.w_max if self.prediction is None else self.w_max * self.prediction.yaw_fraction()

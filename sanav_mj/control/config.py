@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sanav_mj.control.adaptation import AdaptationConfig
+from sanav_mj.control.prediction import PredictionDerating
 from sanav_mj.control.backends import BACKENDS
 from sanav_mj.control.solver import SolverSettings
 from sanav_mj.scene import RobotParams
@@ -245,6 +246,10 @@ class MPCConfig(TrackingConfig):
         footprint_grow_tighten: [m] with ``footprint_grow > 0``: the room growth adds to a
             stage box is tightened by this much more than ``box_margin`` (the plain box's
             room is kept), for the tracking error under model mismatch.
+        footprint_prediction: ``"discs"`` mode: derate the speed and yaw-rate bounds by the
+            one-step prediction error of the disc centres measured online
+            (:class:`sanav_mj.control.prediction.PredictionDerating`); None: off. Unused in
+            ``"disc"`` mode.
     """
 
     q_sa: tuple[float, ...] = (5.0, 5.0)
@@ -259,6 +264,7 @@ class MPCConfig(TrackingConfig):
     footprint_refine_width: float = 0.25
     footprint_grow: float = 0.0
     footprint_grow_tighten: float = 0.0
+    footprint_prediction: PredictionDerating | None = PredictionDerating()
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -292,6 +298,9 @@ class MPCConfig(TrackingConfig):
         ft = self.footprint_grow_tighten
         if isinstance(ft, bool) or not (isinstance(ft, (int, float)) and math.isfinite(ft) and 0 <= ft < 1):
             raise ValueError(f"MPCConfig.footprint_grow_tighten must be a number in [0, 1) m, got {ft!r}")
+        if self.footprint_prediction is not None and not isinstance(self.footprint_prediction, PredictionDerating):
+            raise ValueError(f"MPCConfig.footprint_prediction must be a PredictionDerating or None, "
+                             f"got {self.footprint_prediction!r}")
         fg = self.footprint_grow
         if isinstance(fg, bool) or not (isinstance(fg, (int, float)) and math.isfinite(fg) and 0 <= fg <= 10):
             raise ValueError(f"MPCConfig.footprint_grow must be a number in [0, 10] m, got {fg!r}")

@@ -21,6 +21,7 @@ import numpy as np
 from sanav_mj.control.adaptation import PlantAdaptation
 from sanav_mj.control.config import MPCConfig
 from sanav_mj.control.disc_stages import DiscCover, StallEscape
+from sanav_mj.control.prediction import PredictionMonitor
 from sanav_mj.control.problem import build_tracking_ocp
 from sanav_mj.control.stages import (
     CorridorChain,
@@ -322,6 +323,8 @@ class SAMPC(TrackingMPC):
         ocp = build_tracking_ocp(config.horizon, dt, self.penalty, position_constraints=True, points=pts)
         super().__init__(robot, config, limits, ocp, adaptation, failure_injector=failure_injector)
         self.position_slack = config.box_margin
+        if self.discs is not None and config.footprint_prediction is not None:
+            self.adaptation.prediction = PredictionMonitor(self.discs.offsets, config.footprint_prediction)
         self._q_sa = np.asarray(config.q_sa, float)
         self.reset(np.array([*self.ref_states[0, :2], self.ref_states[0, 2]]))
         self.build_s = time.perf_counter() - t0

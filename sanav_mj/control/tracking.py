@@ -375,10 +375,10 @@ class TrackingMPC:
         z_lb, z_ub = self.input_bounds()
         fb_lb, fb_ub = z_lb.copy(), z_ub.copy()
         ad = self.adaptation
-        cap = min(ad.speed_cap(con.excursion), ad.residual_cap())
+        cap = min(ad.speed_cap(con.excursion), ad.residual_cap(), ad.prediction_cap())
         if cap < self.limits.v_max:
             z_lb = self.derate(z_lb, z_ub, 0, cap)
-        wcap = ad.residual_yaw_cap()
+        wcap = min(ad.residual_yaw_cap(), ad.prediction_yaw_cap())
         if wcap < self.limits.w_max:
             z_lb = self.derate(z_lb, z_ub, 1, wcap)
         if ad.config.fallback_derated:

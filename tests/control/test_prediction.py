@@ -1,0 +1,103 @@
+"""Derating by the one-step prediction error of the disc centres (``control/prediction.py``)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from sanav_mj.control.adaptation import NO_ADAPTATION
+from sanav_mj.control.base import Observation
+from sanav_mj.control.prediction import PredictionDerating, PredictionMonitor
+from sanav_mj.control.sa_mpc import SAMPC, MPCConfig
+from sanav_mj.footprint import Footprint
+
+from mpc_cases import ROBOT, make_areas, make_plan
+
+FP = Footprint(-0.25, 0.25, -0.215, 0.215)
+OFFSETS = np.array([[-0.5 / 3, 0.0], [0.0, 0.0], [0.5 / 3, 0.0]])
+
+
+@pytest.mark.parametrize("kw, match", [(dict(free=0.05, stop=0.05), "free"), (dict(floor=0.0), "floor"),
+                                       (dict(yaw_floor=1.5), "yaw_floor"), (dict(window=0), "window"),
+                                       (dict(free=math.nan), "free")])
+def test_config_rejects_bad_values(kw, match):
+    with pytest.raises(ValueError, match=match):
+        PredictionDerating(**kw)
+
+
+def test_mpc_config_rejects_a_non_derating():
+    with pytest.raises(ValueError, match="footprint_prediction"):
+        MPCConfig(footprint_prediction=0.05)
+
+
+def test_translation_error_is_exact_and_derates_linearly():
+    mon = PredictionMonitor(OFFSETS, PredictionDerating(free=0.01, stop=0.06, floor=0.25, yaw_floor=0.3, window=3))
+    assert mon.observe(np.array([5.0, 5.0, 0.0])) == 0.0 and mon.error == 0.0  # no prediction yet
+    assert mon.fraction() == 1.0
+    mon.expect(np.array([1.0, 2.0, 0.7]))
+    assert mon.observe(np.array([1.0, 2.035, 0.7])) == pytest.approx(0.035, abs=1e-15)
+    assert mon.fraction() == pytest.approx(1.0 - 0.75 * 0.5)  # (0.035 - 0.01) / 0.05 = 0.5
+    assert mon.yaw_fraction() == pytest.approx(0.625)
+    # a prediction is used once: observing again without one measures nothing
+    assert mon.observe(np.array([9.0, 9.0, 0.0])) == 0.0 and mon.error == pytest.approx(0.035)
+    mon.expect(np.array([0.0, 0.0, 0.0]))
+    mon.observe(np.array([0.0, 0.0, 0.0]))
+    assert mon.fraction() == pytest.approx(0.625)  # the window still holds 0.035
+
+
+def test_rotation_error_is_the_outer_discs_chord_and_the_window_forgets():
+    mon = PredictionMonitor(OFFSETS, PredictionDerating(free=0.01, stop=0.06, floor=0.25, yaw_floor=0.3, window=2))
+    mon.expect(np.array([0.0, 0.0, 0.0]))
+    th = 0.4
+    assert mon.observe(np.array([0.0, 0.0, th])) == pytest.approx(2 * (0.5 / 3) * math.sin(th / 2), abs=1e-15)
+    assert mon.fraction() == 0.25 and mon.yaw_fraction() == 0.3  # 6.6 cm > stop: the floors
+    for _ in range(2):
+        mon.expect(np.array([1.0, 1.0, 1.0]))
+        mon.observe(np.array([1.0, 1.0, 1.0]))
+    assert mon.error == 0.0 and mon.fraction() == 1.0
+    mon.reset()
+    assert mon.error == 0.0
+
+
+def _controller(cfg: MPCConfig) -> SAMPC:
+    areas = make_areas([[0.0, -0.6, 6.0, 0.6]])
+    plan = make_plan(areas, [0], [[0.3, 0.0], [5.7, 0.0]])
+    return SAMPC(ROBOT, areas, plan, cfg, footprint=FP)
+
+
+def _run(ctl: SAMPC, offsets: list[float]) -> list:
+    """Steps fed with the pose the last plan predicted, displaced sideways by ``offsets`` [m]."""
+    pose = np.array([0.3, 0.0, 0.0])
+    out = []
+    for k, dy in enumerate(offsets):
+        cmd = ctl.step(Observation(t=0.1 * k, pose=pose, velocity=None))
+        out.append((cmd, ctl.last))
+        pose = np.asarray(cmd.predicted[1], float) + np.array([0.0, dy, 0.0])
+    return out
+
+
+def test_discs_controller_derates_its_bounds_by_the_measured_error():
+    cfg = MPCConfig(footprint="discs", adaptation=NO_ADAPTATION,
+                    footprint_prediction=PredictionDerating(free=0.01, stop=0.06, floor=0.25, yaw_floor=0.3))
+    ctl = _controller(cfg)
+    assert isinstance(ctl.adaptation.prediction, PredictionMonitor)
+    steps = _run(ctl, [0.0] * 12 + [0.035, 0.0])
+    # nominal: the next effective state is the plan's stage 1, nothing is derated
+    assert ctl.adaptation.prediction.error == pytest.approx(0.035, abs=1e-12)
+    v_max, w_max = ctl.limits.v_max, ctl.limits.w_max
+    free_ub = steps[11][1].input_upper  # before the displacement was seen
+    assert free_ub[:, 0].max() > 0.625 * v_max + 0.05
+    ub = steps[13][1].input_upper  # after: |v| <= 0.625 v_max, |w| <= 0.625 w_max (reached at the rate bound)
+    u_prev = steps[13][1].u_prev
+    reach = np.arange(1, ctl.N + 1)[:, None] * ctl.rate_step
+    np.testing.assert_array_less(ub[:, 0], np.maximum(0.625 * v_max, u_prev[0] - reach[:, 0]) + 1e-12)
+    np.testing.assert_array_less(ub[:, 1], np.maximum(0.625 * w_max, u_prev[1] - reach[:, 1]) + 1e-12)
+    assert ub[-5:, 0].max() < free_ub[-5:, 0].max() or ub[:, 0].max() < free_ub[:, 0].max()
+
+
+def test_disc_mode_and_discs_without_prediction_have_no_monitor():
+    assert _controller(MPCConfig()).adaptation.prediction is None
+    assert _controller(MPCConfig(footprint="discs", footprint_prediction=None)).adaptation.prediction is None
