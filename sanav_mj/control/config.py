@@ -189,6 +189,8 @@ class TrackingConfig:
 
 #: values of :attr:`MPCConfig.footprint`.
 FOOTPRINT_MODES = ("disc", "discs")
+#: values of :attr:`MPCConfig.footprint_route`.
+FOOTPRINT_ROUTES = ("pose", "corridor")
 
 
 @dataclass(frozen=True)
@@ -225,6 +227,12 @@ class MPCConfig(TrackingConfig):
             of every edge through a place where the circumscribed-disc map has no room
             (:func:`sanav_mj.eval.episode.planning_areas`), so the corridor keeps to passages
             where the robot can turn when they are not much longer; 0: shortest corridor.
+        footprint_route: ``"discs"`` mode: where corridor and reference come from.
+            ``"pose"``: a search over poses (x, y, yaw) whose disc centres stay in the safe
+            areas, turning on the spot only where the centres' sweep fits
+            (:mod:`sanav_mj.planning.pose_search`); the reference's yaw is the found
+            path's, the corridor the areas it passes. ``"corridor"``: the paper's corridor
+            and B-spline reference (heading = path tangent).
     """
 
     q_sa: tuple[float, ...] = (5.0, 5.0)
@@ -235,6 +243,7 @@ class MPCConfig(TrackingConfig):
     footprint_discs: int = 3
     footprint_margin: float = 0.05
     footprint_narrow_penalty: float = 2.0
+    footprint_route: str = "pose"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -259,6 +268,8 @@ class MPCConfig(TrackingConfig):
         fp = self.footprint_narrow_penalty
         if not (isinstance(fp, (int, float)) and math.isfinite(fp) and fp >= 0):
             raise ValueError(f"MPCConfig.footprint_narrow_penalty must be a finite number >= 0 m, got {fp!r}")
+        if self.footprint_route not in FOOTPRINT_ROUTES:
+            raise ValueError(f"MPCConfig.footprint_route must be one of {FOOTPRINT_ROUTES}, got {self.footprint_route!r}")
 
     def tracking(self) -> TrackingConfig:
         """The core's part of this configuration (the same values)."""

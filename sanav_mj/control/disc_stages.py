@@ -73,14 +73,27 @@ class DiscCover:
         """(K, D, 2) [m] disc centres of the states ``xs`` (K, 3)."""
         return disc_centres(xs, self.offsets)
 
-    def stages(self, chain: CorridorChain, xs: np.ndarray, s_prev: np.ndarray | None,
+    def per_disc(self, chain) -> list[CorridorChain]:
+        """The chain of each disc: ``chain`` itself when it is a list (one per disc), else the
+        one chain D times."""
+        if isinstance(chain, (list, tuple)):
+            if len(chain) != len(self.offsets):
+                raise ValueError(f"chain: expected one corridor chain per disc ({len(self.offsets)}), got {len(chain)}")
+            return list(chain)
+        return [chain] * len(self.offsets)
+
+    def stages(self, chain, xs: np.ndarray, s_prev: np.ndarray | None,
                tol: float) -> tuple[np.ndarray, np.ndarray, float]:
         """Per disc centre of the states ``xs`` (N+1, 3): assignments (D, N+1) (each anchored
         on its previous one, ``s_prev`` (D, N+1) or None), stage boxes (D, N+1, 4) [m] relaxed
-        around its stage-0 centre, and the largest excursion [m] of a stage-0 centre."""
+        around its stage-0 centre, and the largest excursion [m] of a stage-0 centre.
+        ``chain``: one :class:`CorridorChain` for every disc, or a list of one per disc (a
+        pose route's per-disc corridors, ``Plan.disc_corridors``)."""
         pts = self.centres(xs)
+        chains = self.per_disc(chain)
         ss, bs, exc = [], [], 0.0
         for d in range(pts.shape[1]):
+            chain = chains[d]
             cand = first_candidates(len(chain), None if s_prev is None else s_prev[d])
             s = assign_stages(chain, pts[:, d], cand, tol=tol)
             b, e = relax_boxes(stage_boxes(chain, s), pts[0, d])
@@ -100,10 +113,24 @@ class DiscCover:
         pts = self.centres(xs)
         return np.min([box_slack(pts[:, d], bs[d]) for d in range(pts.shape[1])], axis=0)
 
-    def clearance(self, chain: CorridorChain, xs: np.ndarray) -> np.ndarray:
-        """(P,) [m] of the states (P, 3): the worst disc centre's largest slack over the chain's members."""
+    def clearance(self, chain, xs: np.ndarray) -> np.ndarray:
+        """(P,) [m] of the states (P, 3): the worst disc centre's largest slack over the
+        chain's members (``chain`` as in :meth:`stages`)."""
         pts = self.centres(xs)
-        return np.min([chain_slack(chain, pts[:, d]) for d in range(pts.shape[1])], axis=0)
+        chains = self.per_disc(chain)
+        return np.min([chain_slack(chains[d], pts[:, d]) for d in range(pts.shape[1])], axis=0)
+
+    @staticmethod
+    def area_ids(chains: list[CorridorChain], ss: np.ndarray) -> list[int]:
+        """Distinct safe-area indices of the members each disc's assignment ``ss`` (D, N+1)
+        spans on its own chain, in order of first appearance (the J_SA candidates)."""
+        ids: list[int] = []
+        for chain, s in zip(chains, ss):
+            for pair in chain.rect_pair[int(s[0]): int(s[-1]) + 1]:
+                for r in pair:
+                    if int(r) not in ids:
+                        ids.append(int(r))
+        return ids
 
     def turn_allowed(self, chain: CorridorChain, x0: np.ndarray) -> bool:
         """Whether the circle of radius :attr:`sweep` about the position of ``x0`` (3,) fits in

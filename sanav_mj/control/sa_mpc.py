@@ -65,8 +65,19 @@ def _plan_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
     and the chain index (2 x corridor position, -1 off the corridor) of each sample's area."""
     chain = CorridorChain.build(areas, plan.corridor, box_margin)
     states, inputs, ref_area = _resample(plan.reference, dt)
-    pos = {int(a): 2 * i for i, a in enumerate(np.asarray(plan.corridor, int))}
-    return chain, states, inputs, np.array([pos.get(int(a), -1) for a in ref_area], dtype=int)
+    corridor = np.asarray(plan.corridor, int)
+    if len(set(corridor.tolist())) == corridor.size:
+        pos = {int(a): 2 * i for i, a in enumerate(corridor)}
+        return chain, states, inputs, np.array([pos.get(int(a), -1) for a in ref_area], dtype=int)
+    # an area repeats (a pose route that backs up): each sample takes the first occurrence
+    # of its area at or after the previous sample's position
+    out, j = np.full(len(ref_area), -1, dtype=int), 0
+    for k, a in enumerate(np.asarray(ref_area, int)):
+        hit = np.flatnonzero(corridor[j:] == a)
+        if hit.size:
+            j += int(hit[0])
+            out[k] = 2 * j
+    return chain, states, inputs, out
 
 
 @dataclass(frozen=True)
@@ -330,6 +341,9 @@ class SAMPC(TrackingMPC):
         self.areas, self._rects, self.plan = areas, np.asarray(areas.rects, dtype=float), plan
         self.chain, self.ref_states, self.ref_inputs, self._ref_chain = _plan_tables(areas, plan, box_margin, dt)
         self._sa_cache: dict[tuple[int, int], np.ndarray] = {}
+        dc = getattr(plan, "disc_corridors", None)
+        #: ``"discs"`` with a pose route: one chain per disc (else the corridor's chain for all)
+        self.disc_chains = None if dc is None else [CorridorChain.build(areas, c, box_margin) for c in dc]
 
     def replace_plan(self, areas: SafeAreas, plan: Plan) -> None:
         """Follow a new corridor and reference (a successful plan on ``areas`` starting at the
@@ -385,12 +399,34 @@ class SAMPC(TrackingMPC):
                                   float(x0[2]))
             return Constraints(boxes_c[1:, :2].ravel(), boxes_c[1:, 2:].ravel(), self._sa_params(s), xr, ur,
                                excursion, (s, boxes_c))
-        ss, bs, excursion = self.discs.stages(self.chain, guess, self._s_prev_d, self._check_tol)
+        ss, bs, excursion = self.discs.stages(self._chains(), guess, self._s_prev_d, self._check_tol)
         c = self.discs.centre
         xr, ur = exit_targets(self.chain, self._ref_chain[self._horizon_idx], x_ref, u_ref, ss[c], x0[:2],
                               float(x0[2]))
-        key = np.array([ss[:, 0].min(), ss[:, -1].max()])
-        return Constraints(*DiscCover.bounds(bs), self._sa_params(key), xr, ur, excursion, (ss[c], bs[c], ss, bs))
+        if self.disc_chains is None:
+            theta = self._sa_params(np.array([ss[:, 0].min(), ss[:, -1].max()]))
+        else:
+            theta = self._sa_params_ids(DiscCover.area_ids(self.disc_chains, ss))
+        return Constraints(*DiscCover.bounds(bs), theta, xr, ur, excursion, (ss[c], bs[c], ss, bs))
+
+    def _chains(self):
+        """The chain(s) of the disc rows: one per disc for a pose route, else the corridor's."""
+        return self.chain if self.disc_chains is None else self.disc_chains
+
+    def _sa_params_ids(self, ids: list[int]) -> np.ndarray:
+        """J_SA slot parameters (6 * slots,) for the safe areas ``ids``, all or none (see
+        :func:`~sanav_mj.control.stages.safe_area_params`)."""
+        from sanav_mj.control.stages import shrink_box
+
+        slots = self.penalty.n_slots
+        if len(ids) > slots:
+            ids = []
+        theta = np.zeros((slots, 6))
+        theta[: len(ids), :4] = shrink_box(self._rects[ids], self.config.box_margin)
+        theta[: len(ids), 4] = self._q_sa[: len(ids)]
+        theta[: len(ids), 5] = 1.0
+        theta[len(ids):, 2:4] = 1.0
+        return theta.ravel()
 
     def _guess_inputs(self) -> np.ndarray:
         """The warm start; in ``"discs"`` mode an escape guess once stalled (:class:`StallEscape`)."""
@@ -414,7 +450,7 @@ class SAMPC(TrackingMPC):
 
     def state_clearance(self, xs: np.ndarray) -> np.ndarray:
         """(P,) [m] slack of the states (P, 3) over the chain's members (``"discs"``: the worst centre's)."""
-        return chain_slack(self.chain, xs[:, :2]) if self.discs is None else self.discs.clearance(self.chain, xs)
+        return chain_slack(self.chain, xs[:, :2]) if self.discs is None else self.discs.clearance(self._chains(), xs)
 
     def _pose(self, x0, con, u_guess, guess):
         prob = super()._pose(x0, con, u_guess, guess)
@@ -436,7 +472,7 @@ class SAMPC(TrackingMPC):
     def turn_context(self, x0: np.ndarray, xs: np.ndarray):
         """Stage assignment and boxes of an opening-turn plan."""
         if self.discs is not None:
-            ss, bs, _ = self.discs.stages(self.chain, np.vstack((x0[None], xs[1:])), self._s_prev_d, self._check_tol)
+            ss, bs, _ = self.discs.stages(self._chains(), np.vstack((x0[None], xs[1:])), self._s_prev_d, self._check_tol)
             return ss[self.discs.centre], bs[self.discs.centre], ss, bs
         s = assign_stages(self.chain, xs[:, :2], first_candidates(len(self.chain), self._s_prev), tol=self._check_tol)
         boxes, _ = relax_boxes(stage_boxes(self.chain, s), x0[:2])
@@ -455,13 +491,19 @@ class SAMPC(TrackingMPC):
     # ---------------------------------------------------------------- pieces of a step
 
     def _progress(self, pos: np.ndarray) -> int:
-        """Index of the reference sample nearest ``pos`` in the window ahead of the last one."""
+        """Index of the reference sample nearest ``pos`` (2,) in the window ahead of the last
+        one; ``"discs"``: nearest the pose ``pos`` (3,) in disc-centre distance
+        ``|dp|^2 + (sweep dyaw)^2`` (a reference that turns on the spot holds its position)."""
         k = len(self.ref_states)
         win = self.config.reference_window or self.N
         lo = self._ref_index
         hi = min(k, lo + win + 1)
-        seg = self.ref_states[lo:hi, :2] - pos
-        i = lo + int(np.argmin(np.einsum("ij,ij->i", seg, seg)))
+        seg = self.ref_states[lo:hi, :2] - pos[:2]
+        d2 = np.einsum("ij,ij->i", seg, seg)
+        if self.discs is not None and pos.shape[0] > 2:
+            dyaw = (self.ref_states[lo:hi, 2] - pos[2] + np.pi) % (2 * np.pi) - np.pi
+            d2 = d2 + (self.discs.sweep * dyaw) ** 2
+        i = lo + int(np.argmin(d2))
         self._ref_index = i
         return i
 
@@ -473,7 +515,7 @@ class SAMPC(TrackingMPC):
         within pi of the measured yaw (the reference yaw is unwrapped, the measured one is
         not), which makes the yaw error the wrapped one.
         """
-        i = self._progress(pose[:2])
+        i = self._progress(pose[:2] if self.discs is None else pose[:3])
         k = len(self.ref_states)
         idx = np.minimum(np.arange(i, i + self.N + 1), k - 1)
         xr = self.ref_states[idx].copy()

@@ -48,6 +48,10 @@ class Plan:
         info: diagnostics (plain numbers and strings): e.g. the smoothing weight finally
             used, how often it was halved, the length of path replaced by the interpolated
             polyline, path length and duration, per-stage wall times.
+        disc_corridors: None, or (footprint discs' plans, :func:`sanav_mj.planning.
+            pose_reference.route_plan`) one (C_d,) int corridor per disc of the footprint's
+            cover: the safe areas that disc's centre passes through, in order; ``corridor``
+            is the one of the disc nearest the body origin.
     """
 
     ok: bool
@@ -59,3 +63,4 @@ class Plan:
     smoothed: np.ndarray
     reference: Reference | None
     info: dict[str, Any] = field(default_factory=dict)
+    disc_corridors: tuple[np.ndarray, ...] | None = None

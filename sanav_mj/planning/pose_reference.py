@@ -1,0 +1,253 @@
+"""A plan from a pose path (:mod:`sanav_mj.planning.pose_search`): corridor and reference.
+
+The pose path is a chain of lattice poses joined by forward / backward moves and turns on
+the spot. From it:
+
+- **Dense poses.** Each move is cut into pieces of at most ``spacing`` [m] of disc-centre
+  travel (position and yaw interpolated linearly, the motion the search checked), and the
+  dense poses are kept only if every disc centre of each is in the search's free set.
+- **Timing.** Runs of moves of one kind (forward, backward, on the spot) are timed rest to
+  rest: translations with :func:`sanav_mj.planning.timing.speed_profile` on the dense poses
+  (curvature = yaw change / arc length; speed cap ``v_cap`` forwards, ``v_rev_cap``
+  backwards), turns with the time-optimal trapezoid of the yaw rate (``w_cap``,
+  ``alpha_cap``). The reference samples the timed poses at ``dt``; its inputs are the
+  finite differences (speed: the displacement projected on the heading, so it is negative
+  when reversing; yaw rate: the yaw change), the last one (0, 0). Its yaw is the pose
+  path's yaw, not the path tangent: it keeps the footprint where the search found room.
+- **Corridors, one per disc.** The safe areas each disc centre passes through, in order
+  (stay in an area while inside it, then enter the neighbouring area that holds the point
+  longest; areas may repeat when the path backs up). Each disc's stage assignment in
+  SA-MPC walks its own chain: on a diagonal staircase of small areas the discs of an arcing
+  body pass through different areas, and no single chain holds every disc's sequence as a
+  contiguous run (measured on barn_0003: a single chain from the body origin failed the
+  rear disc). Each trajectory is checked to be a monotone walk along its corridor (stay
+  while inside, else the next one); a path crossing exactly through a corner of two areas
+  fails the check and gives no plan (the caller keeps its own). ``Plan.corridor`` is the
+  corridor of the disc nearest the body origin.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from sanav_mj.mapping.safe_areas import SafeAreas
+from sanav_mj.planning.pose_search import REVERSE, SPIN, PoseRoute, disc_points
+from sanav_mj.planning.reference import Plan, Reference
+from sanav_mj.planning.timing import speed_profile
+
+CONTAIN_TOL = 1e-9
+
+
+def densify(route: PoseRoute, offsets: np.ndarray, spacing: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
+    """Dense poses (Q, 3) and the kind of the move each dense piece belongs to (Q-1,).
+
+    Each move is cut into ``ceil(travel / spacing)`` pieces, ``travel`` [m] the largest
+    disc-centre displacement of the move (straight-line bound: translation + offset x yaw).
+    """
+    reach = float(np.hypot(*np.asarray(offsets, float).T).max()) if len(offsets) else 0.0
+    out, kinds = [route.poses[:1]], []
+    for a, b, kind in zip(route.poses[:-1], route.poses[1:], route.kinds):
+        travel = float(np.hypot(*(b[:2] - a[:2]))) + reach * abs(float(b[2] - a[2]))
+        n = max(1, int(math.ceil(travel / spacing)))
+        t = (np.arange(1, n + 1) / n)[:, None]
+        out.append(a + t * (b - a))
+        kinds.extend([int(kind)] * n)
+    return np.vstack(out), np.array(kinds, dtype=int)
+
+
+def _spin_times(dyaw: np.ndarray, w_cap: float, alpha: float) -> np.ndarray:
+    """Times (n,) [s] at which a rest-to-rest turn of total ``|dyaw[-1]|`` reaches ``|dyaw|``."""
+    th = np.abs(dyaw)
+    total = float(th[-1])
+    wp = min(w_cap, math.sqrt(alpha * total))
+    ta, tha = wp / alpha, wp * wp / (2 * alpha)
+    T = 2 * ta + (total - 2 * tha) / wp
+    return np.where(th <= tha, np.sqrt(2 * th / alpha),
+                    np.where(th >= total - tha, T - np.sqrt(np.maximum(2 * (total - th) / alpha, 0.0)),
+                             ta + (th - tha) / wp))
+
+
+def time_poses(dense: np.ndarray, kinds: np.ndarray, v_cap: float, v_rev_cap: float, w_cap: float,
+               a_cap: float, alpha_cap: float, a_lat: float) -> np.ndarray:
+    """Times (Q,) [s] of the dense poses (Q, 3): runs of one kind of move timed rest to rest."""
+    t = np.zeros(dense.shape[0])
+    q = dense.shape[0] - 1
+    i = 0
+    while i < q:
+        j = i
+        while j < q and kinds[j] == kinds[i]:
+            j += 1
+        seg = dense[i:j + 1]
+        if kinds[i] == SPIN:
+            tt = _spin_times(seg[:, 2] - seg[0, 2], w_cap, alpha_cap)
+        else:
+            ds = np.hypot(*np.diff(seg[:, :2], axis=0).T)
+            ke = np.abs(np.diff(seg[:, 2])) / np.maximum(ds, 1e-12)
+            kn = np.zeros(seg.shape[0])
+            kn[:-1] = ke
+            kn[1:] = np.maximum(kn[1:], ke)
+            vc = v_rev_cap if kinds[i] == REVERSE else v_cap
+            v = speed_profile(ds, kn, vc, w_cap, a_lat, a_cap)
+            tt = np.zeros(seg.shape[0])
+            np.cumsum(2.0 * ds / np.maximum(v[:-1] + v[1:], 1e-12), out=tt[1:])
+        t[i:j + 1] = t[i] + tt
+        i = j
+    return t
+
+
+def sample_reference(dense: np.ndarray, times: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """States (K, 3) and inputs (K, 2) at ``k dt`` from timed dense poses (see the module docstring)."""
+    T = float(times[-1])
+    K = int(math.ceil(T / dt - 1e-9)) + 1
+    tk = np.minimum(np.arange(K) * dt, T)
+    # strictly increasing time nodes for the interpolation (turns and translations share ends)
+    keep = np.concatenate(([True], np.diff(times) > 1e-12))
+    tn, dn = times[keep], dense[keep]
+    states = np.column_stack([np.interp(tk, tn, dn[:, i]) for i in range(3)])
+    inputs = np.zeros((K, 2))
+    if K > 1:
+        d = np.diff(states, axis=0)
+        ym = states[:-1, 2] + 0.5 * d[:, 2]
+        inputs[:-1, 0] = (d[:, 0] * np.cos(ym) + d[:, 1] * np.sin(ym)) / dt
+        inputs[:-1, 1] = d[:, 2] / dt
+    return states, inputs
+
+
+def _inside(rect: np.ndarray, p: np.ndarray) -> bool:
+    return bool(rect[0] - CONTAIN_TOL <= p[0] <= rect[2] + CONTAIN_TOL and rect[1] - CONTAIN_TOL <= p[1] <= rect[3] + CONTAIN_TOL)
+
+
+def _neighbours(areas: SafeAreas) -> list[set[int]]:
+    nb: list[set[int]] = [set() for _ in range(len(areas.rects))]
+    for i, j in np.asarray(areas.edges, dtype=int).reshape(-1, 2):
+        nb[i].add(int(j))
+        nb[j].add(int(i))
+    return nb
+
+
+def _bfs(nb: list[set[int]], src: int, targets: set[int]) -> list[int] | None:
+    prev = {src: -1}
+    frontier = [src]
+    while frontier:
+        nxt = []
+        for a in frontier:
+            if a in targets:
+                path = [a]
+                while prev[path[-1]] != -1:
+                    path.append(prev[path[-1]])
+                return path[::-1]
+            for b in nb[a]:
+                if b not in prev:
+                    prev[b] = a
+                    nxt.append(b)
+        frontier = nxt
+    return None
+
+
+def corridor_of_points(areas: SafeAreas, points: np.ndarray) -> np.ndarray | None:
+    """The safe areas (C,) int a dense point sequence (P, 2) [m] passes through, in order (see
+    the module docstring); None when a point lies in no safe area."""
+    rects = np.asarray(areas.rects, dtype=float)
+    nb = _neighbours(areas)
+    inside = ((points[:, None, 0] >= rects[None, :, 0] - CONTAIN_TOL) & (points[:, None, 0] <= rects[None, :, 2] + CONTAIN_TOL)
+              & (points[:, None, 1] >= rects[None, :, 1] - CONTAIN_TOL) & (points[:, None, 1] <= rects[None, :, 3] + CONTAIN_TOL))
+    if not inside.any(axis=1).all():
+        return None
+    # run length ahead: how many consecutive points from i on lie in rect r
+    P = points.shape[0]
+    run = np.zeros(inside.shape, dtype=np.int32)
+    run[-1] = inside[-1]
+    for i in range(P - 2, -1, -1):
+        run[i] = np.where(inside[i], run[i + 1] + 1, 0)
+    cur = int(np.argmax(run[0]))
+    out = [cur]
+    for i in range(1, P):
+        if inside[i, cur]:
+            continue
+        cand = np.flatnonzero(inside[i])
+        adj = [c for c in cand if c in nb[cur]]
+        if adj:
+            nxt = max(adj, key=lambda c: run[i, c])
+            out.append(int(nxt))
+        else:
+            path = _bfs(nb, cur, set(int(c) for c in cand))
+            if path is None:
+                return None
+            out.extend(path[1:])
+        cur = out[-1]
+    return np.array(out, dtype=np.int64)
+
+
+def chain_walk(rects: np.ndarray, corridor: np.ndarray, points: np.ndarray) -> np.ndarray | None:
+    """Corridor positions (P,) of a monotone walk covering the points (P, 2) [m] (stay while
+    inside, else advance one area), or None when a point is neither in its area nor the next."""
+    cr = np.asarray(rects, dtype=float)[np.asarray(corridor, dtype=int)]
+    pos = np.zeros(points.shape[0], dtype=np.int64)
+    j = 0
+    for i, p in enumerate(points):
+        if _inside(cr[j], p):
+            pos[i] = j
+            continue
+        if j + 1 < len(cr) and _inside(cr[j + 1], p):
+            j += 1
+            pos[i] = j
+            continue
+        # the chain joins consecutive areas through their bridge boxes: a point just past a
+        # portal into an area two steps ahead is not covered
+        return None
+    return pos
+
+
+def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np.ndarray, dt: float,
+               v_cap: float, v_rev_cap: float, w_cap: float, a_cap: float, alpha_cap: float,
+               a_lat: float, info: dict[str, Any] | None = None) -> tuple[Plan | None, str]:
+    """A :class:`Plan` following a pose route, or ``(None, why)`` when its corridor does not
+    cover every disc centre monotonically (see the module docstring).
+
+    Args:
+        areas: the safe areas the route was searched on.
+        route: the pose route.
+        goal: (2,) [m] the goal the plan reports.
+        offsets: (D, 2) [m] disc centres in the body frame.
+        dt: [s] reference period.
+        v_cap, v_rev_cap: [m/s] speed caps forwards / backwards (> 0).
+        w_cap: [rad/s], a_cap: [m/s^2], alpha_cap: [rad/s^2], a_lat: [m/s^2] limits.
+        info: diagnostics to start the plan's ``info`` from.
+    """
+    t0 = time.perf_counter()
+    offsets = np.asarray(offsets, dtype=float)
+    dense, kinds = densify(route, offsets)
+    rects = np.asarray(areas.rects, dtype=float)
+    discs = disc_points(dense[:, 0], dense[:, 1], dense[:, 2], offsets)
+    corridors = []
+    for d in range(discs.shape[1]):
+        cor = corridor_of_points(areas, discs[:, d])
+        if cor is None:
+            return None, f"disc {d} of the pose path leaves the safe areas"
+        if chain_walk(rects, cor, discs[:, d]) is None:
+            return None, f"disc {d} of the pose path crosses a corner between safe areas"
+        corridors.append(cor)
+    c = int(np.argmin(np.hypot(*offsets.T)))
+    corridor = corridors[c]
+    times = time_poses(dense, kinds, v_cap, v_rev_cap, w_cap, a_cap, alpha_cap, a_lat)
+    states, inputs = sample_reference(dense, times, dt)
+    pos = chain_walk(rects, corridor, disc_points(states[:, 0], states[:, 1], states[:, 2], offsets)[:, c])
+    if pos is None:  # the samples are points of the dense path; guard
+        return None, "reference samples not covered by the corridor"
+    ref = Reference(dt=dt, states=states, inputs=inputs, area=corridor[pos])
+    path_len = float(np.hypot(*np.diff(dense[:, :2], axis=0).T).sum())
+    inf = dict(info or {})
+    inf.update(pose_route=True, corridor_areas=int(corridor.size), path_length_m=path_len,
+               duration_s=float(times[-1]), pose_search_ms=route.time_ms, pose_nodes=route.nodes,
+               pose_reverse_m=float(sum(np.hypot(*(b[:2] - a[:2])) for a, b, k in
+                                        zip(route.poses[:-1], route.poses[1:], route.kinds) if k == REVERSE)),
+               pose_spin_rad=float(sum(abs(b[2] - a[2]) for a, b, k in
+                                       zip(route.poses[:-1], route.poses[1:], route.kinds) if k == SPIN)),
+               route_ms=(time.perf_counter() - t0) * 1e3)
+    wp = route.poses[:, :2].copy()
+    return Plan(True, "ok", corridor, np.asarray(goal, float).copy(), wp, dense[:, :2].copy(), dense[:, :2].copy(),
+                ref, inf, tuple(corridors)), "ok"
