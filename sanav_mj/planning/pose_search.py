@@ -81,6 +81,9 @@ class PoseSearchConfig:
         clearance_weight: ... by up to this times its length (at zero clearance).
         goal_radius: [m] the path ends at the cheapest node within this of the goal.
         start_radius: [m] the path starts at a node within this of the start.
+        spin_anywhere: also turn on the spot by one heading step where the disc centres of
+            the poses at 1/4, 1/2, 3/4 of the turn are free (a partial turn, e.g. to align
+            with a passage); False: only where the whole sweep circle fits in one area.
     """
 
     raster: float = 0.005
@@ -92,6 +95,7 @@ class PoseSearchConfig:
     clearance_weight: float = 1.0
     goal_radius: float = 0.1
     start_radius: float = 0.1
+    spin_anywhere: bool = True
 
     def __post_init__(self) -> None:
         for name in ("raster", "clearance_ref", "goal_radius", "start_radius"):
@@ -334,8 +338,15 @@ def search_poses(areas, origin, shape, h: float, offsets: np.ndarray, sweep: flo
             w_l.append(cost)
         for dk in (-1, 1):  # turns on the spot
             k2 = (k + dk) % K
-            ok = spin_ok[iy, ix] & valid[k2, iy, ix]
-            dyaw = abs(float(wrap(HEADINGS[k2] - HEADINGS[k])))
+            ok = valid[k2, iy, ix]
+            dyaw = float(wrap(HEADINGS[k2] - HEADINGS[k]))
+            if config.spin_anywhere:
+                yaw = HEADINGS[k] + fractions * dyaw
+                pts = disc_points(cx[ix][:, None], cy[iy][:, None], np.broadcast_to(yaw, (ix.size, 3)), offsets)
+                ok &= spin_ok[iy, ix] | raster.is_free(pts).all(axis=(-1, -2))
+            else:
+                ok &= spin_ok[iy, ix]
+            dyaw = abs(dyaw)
             src_l.append(node(k, iy[ok], ix[ok]))
             dst_l.append(node(k2, iy[ok], ix[ok]))
             w_l.append(np.full(int(ok.sum()), config.spin_cost * dyaw))
