@@ -30,7 +30,8 @@ A node ``(ix, iy, k)`` exists when every disc centre of its pose is free. Moves:
   so the per-disc stage assignment stays monotone).
 
 A translating move is accepted when its end nodes exist and the disc centres of the poses
-at 1/4, 1/2, 3/4 of it (position and yaw interpolated linearly) are free. Costs: length
+sampled along it (position and yaw interpolated linearly, at most ``check_spacing`` of
+disc-centre travel apart) are free. Costs: length
 (x ``reverse_factor`` backwards) + ``arc_cost`` per radian of an arc + a clearance term
 ``clearance_weight * length * max(0, 1 - c / clearance_ref)`` with ``c`` the smallest
 distance of the end pose's disc centres to the boundary of the free set; turns on the spot
@@ -82,8 +83,10 @@ class PoseSearchConfig:
         goal_radius: [m] the path ends at the cheapest node within this of the goal.
         start_radius: [m] the path starts at a node within this of the start.
         spin_anywhere: also turn on the spot by one heading step where the disc centres of
-            the poses at 1/4, 1/2, 3/4 of the turn are free (a partial turn, e.g. to align
-            with a passage); False: only where the whole sweep circle fits in one area.
+            the poses sampled along the turn are free (a partial turn, e.g. to align with a
+            passage); False: only where the whole sweep circle fits in one area.
+        check_spacing: [m] a move is checked at poses whose disc centres are at most this
+            far apart (position and yaw interpolated linearly).
     """
 
     raster: float = 0.005
@@ -96,9 +99,10 @@ class PoseSearchConfig:
     goal_radius: float = 0.1
     start_radius: float = 0.1
     spin_anywhere: bool = True
+    check_spacing: float = 0.02
 
     def __post_init__(self) -> None:
-        for name in ("raster", "clearance_ref", "goal_radius", "start_radius"):
+        for name in ("raster", "clearance_ref", "goal_radius", "start_radius", "check_spacing"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"PoseSearchConfig.{name} must be a finite number > 0 [m], got {v!r}")
@@ -251,11 +255,13 @@ class PoseRoute:
 
 @dataclass(frozen=True)
 class PoseSearchResult:
-    """:func:`search_poses`'s answer: ``route`` (None when there is none) and ``detail``."""
+    """:func:`search_poses`'s answer: ``route`` (None when there is none), ``detail``, the
+    wall time [ms] and the free-set ``raster`` the route was checked on."""
 
     route: PoseRoute | None
     detail: str
     time_ms: float
+    raster: PointRaster | None = None
 
 
 def search_poses(areas, origin, shape, h: float, offsets: np.ndarray, sweep: float,
@@ -303,7 +309,6 @@ def search_poses(areas, origin, shape, h: float, offsets: np.ndarray, sweep: flo
         return (k * ny + iy) * nx + ix
 
     src_l, dst_l, w_l = [], [], []
-    fractions = np.array([0.25, 0.5, 0.75])
     for k in range(K):
         iy, ix = np.nonzero(valid[k])
         if iy.size == 0:
@@ -323,9 +328,16 @@ def search_poses(areas, origin, shape, h: float, offsets: np.ndarray, sweep: flo
             if sy.size == 0:
                 continue
             dyaw = float(wrap(HEADINGS[k2] - HEADINGS[k]))
-            px, py = cx[sx][:, None] + fractions * d[0] * h, cy[sy][:, None] + fractions * d[1] * h
-            yaw = HEADINGS[k] + fractions * dyaw
-            mid = raster.is_free(disc_points(px, py, np.broadcast_to(yaw, px.shape), offsets)).all(axis=(-1, -2))
+            travel = float(np.hypot(*d)) * h + sweep * abs(dyaw)
+            fr = np.arange(1, int(math.ceil(travel / config.check_spacing))) / math.ceil(travel / config.check_spacing)
+            # a disc centre moves at most ``travel`` along the move, so it stays within
+            # travel / 2 of one end: ends with more clearance than that (plus two raster
+            # cells for the cell-centre distances) need no samples
+            mid = (np.minimum(clear[k, sy, sx], clear[k2, ty, tx]) > 0.5 * travel + 2.0 * raster.cell)
+            near = np.flatnonzero(~mid)
+            px, py = cx[sx[near]][:, None] + fr * d[0] * h, cy[sy[near]][:, None] + fr * d[1] * h
+            yaw = HEADINGS[k] + fr * dyaw
+            mid[near] = raster.is_free(disc_points(px, py, np.broadcast_to(yaw, px.shape), offsets)).all(axis=(-1, -2))
             sy, sx, ty, tx = sy[mid], sx[mid], ty[mid], tx[mid]
             length = float(np.hypot(*d)) * h
             c = clear[k2, ty, tx]
@@ -341,9 +353,16 @@ def search_poses(areas, origin, shape, h: float, offsets: np.ndarray, sweep: flo
             ok = valid[k2, iy, ix]
             dyaw = float(wrap(HEADINGS[k2] - HEADINGS[k]))
             if config.spin_anywhere:
-                yaw = HEADINGS[k] + fractions * dyaw
-                pts = disc_points(cx[ix][:, None], cy[iy][:, None], np.broadcast_to(yaw, (ix.size, 3)), offsets)
-                ok &= spin_ok[iy, ix] | raster.is_free(pts).all(axis=(-1, -2))
+                m = int(math.ceil(sweep * abs(dyaw) / config.check_spacing))
+                fr = np.arange(1, m) / m
+                free = spin_ok[iy, ix] | (np.minimum(clear[k, iy, ix], clear[k2, iy, ix])
+                                          > 0.5 * sweep * abs(dyaw) + 2.0 * raster.cell)
+                near = np.flatnonzero(ok & ~free)
+                yaw = HEADINGS[k] + fr * dyaw
+                pts = disc_points(cx[ix[near]][:, None], cy[iy[near]][:, None], np.broadcast_to(yaw, (near.size, fr.size)),
+                                  offsets)
+                free[near] = raster.is_free(pts).all(axis=(-1, -2))
+                ok &= free
             else:
                 ok &= spin_ok[iy, ix]
             dyaw = abs(dyaw)
@@ -404,4 +423,4 @@ def search_poses(areas, origin, shape, h: float, offsets: np.ndarray, sweep: flo
     along = np.einsum("ij,ij->i", step, head)
     kinds = np.where(np.hypot(*step.T) < 1e-9, SPIN, np.where(along >= 0, FORWARD, REVERSE)).astype(int)
     route = PoseRoute(poses, kinds, best, int(valid.sum()), int(w.size), ms)
-    return PoseSearchResult(route, "ok", ms)
+    return PoseSearchResult(route, "ok", ms, raster)
