@@ -28,6 +28,41 @@ from sanav_mj.control.stages import (
     stage_boxes,
 )
 
+def member_chain_of(areas, members: np.ndarray, margin: float) -> CorridorChain:
+    """The :class:`CorridorChain` of a pose route's per-disc member sequence (``Plan.disc_corridors``).
+
+    Args:
+        areas: the safe areas (rects, edges).
+        members: (L,) int indices into :func:`sanav_mj.planning.pose_search.member_boxes`
+            (area ``r`` for ``r < R``, else the bridge across edge ``r - R``).
+        margin: [m] each stay / advance box is shrunk by this (``box_margin``).
+
+    Raises:
+        ValueError: an index out of range, or consecutive members that do not overlap with
+            positive area (the chain's contract).
+    """
+    from sanav_mj.planning.pose_search import member_boxes
+
+    from sanav_mj.control.stages import box_intersection, shrink_box
+
+    allb = member_boxes(areas, 0.0)
+    m = np.asarray(members, dtype=int).ravel()
+    if m.size == 0 or m.min() < 0 or m.max() >= len(allb):
+        raise ValueError(f"disc_corridors: expected member indices in [0, {len(allb)}), got {m.tolist()}")
+    boxes = allb[m]
+    inter = box_intersection(boxes[:-1], boxes[1:])
+    if np.any(inter[:, 2:] - inter[:, :2] <= 1e-9):
+        raise ValueError(f"disc_corridors: consecutive member boxes must overlap, got members {m.tolist()}")
+    R = len(areas.rects)
+    edges = np.asarray(areas.edges, dtype=int).reshape(-1, 2)
+    pairs = np.array([(i, i) if i < R else tuple(edges[i - R]) for i in m], dtype=int).reshape(-1, 2)
+    stay = shrink_box(boxes, margin)
+    adv = np.empty_like(boxes)
+    adv[0] = stay[0]
+    adv[1:] = shrink_box(inter, margin)
+    return CorridorChain(boxes, pairs, stay, adv)
+
+
 #: steps at rest before an escape guess is tried (see :class:`StallEscape`).
 STALL_STEPS = 3
 

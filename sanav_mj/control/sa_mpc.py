@@ -20,7 +20,7 @@ import numpy as np
 
 from sanav_mj.control.adaptation import PlantAdaptation
 from sanav_mj.control.config import MPCConfig
-from sanav_mj.control.disc_stages import DiscCover, StallEscape
+from sanav_mj.control.disc_stages import DiscCover, StallEscape, member_chain_of
 from sanav_mj.control.problem import build_tracking_ocp
 from sanav_mj.control.stages import (
     CorridorChain,
@@ -343,7 +343,7 @@ class SAMPC(TrackingMPC):
         self._sa_cache: dict[tuple[int, int], np.ndarray] = {}
         dc = getattr(plan, "disc_corridors", None)
         #: ``"discs"`` with a pose route: one chain per disc (else the corridor's chain for all)
-        self.disc_chains = None if dc is None else [CorridorChain.build(areas, c, box_margin) for c in dc]
+        self.disc_chains = None if dc is None else [member_chain_of(areas, c, box_margin) for c in dc]
 
     def replace_plan(self, areas: SafeAreas, plan: Plan) -> None:
         """Follow a new corridor and reference (a successful plan on ``areas`` starting at the
@@ -401,11 +401,12 @@ class SAMPC(TrackingMPC):
                                excursion, (s, boxes_c))
         ss, bs, excursion = self.discs.stages(self._chains(), guess, self._s_prev_d, self._check_tol)
         c = self.discs.centre
-        xr, ur = exit_targets(self.chain, self._ref_chain[self._horizon_idx], x_ref, u_ref, ss[c], x0[:2],
-                              float(x0[2]))
         if self.disc_chains is None:
+            xr, ur = exit_targets(self.chain, self._ref_chain[self._horizon_idx], x_ref, u_ref, ss[c], x0[:2],
+                                  float(x0[2]))
             theta = self._sa_params(np.array([ss[:, 0].min(), ss[:, -1].max()]))
-        else:
+        else:  # a pose route: its reference walks every disc's chain; targets stay as planned
+            xr, ur = x_ref, u_ref
             theta = self._sa_params_ids(DiscCover.area_ids(self.disc_chains, ss))
         return Constraints(*DiscCover.bounds(bs), theta, xr, ur, excursion, (ss[c], bs[c], ss, bs))
 
@@ -467,7 +468,8 @@ class SAMPC(TrackingMPC):
             margins = np.concatenate(([box_slack(x0[None, :2], boxes[:1])[0]], box_slack(xs[1:, :2], boxes[1:])))
         else:
             margins = self.discs.margins(np.vstack((x0[None], xs[1:])), context[3])
-        return stage_rect_ids(self.chain, self._rects, s, xs[:, :2]), margins
+        chain = self.chain if self.disc_chains is None else self.disc_chains[self.discs.centre]
+        return stage_rect_ids(chain, self._rects, s, xs[:, :2]), margins
 
     def turn_context(self, x0: np.ndarray, xs: np.ndarray):
         """Stage assignment and boxes of an opening-turn plan."""

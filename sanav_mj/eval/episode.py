@@ -175,7 +175,7 @@ def footprint_route_plan(plan: Plan, areas: SafeAreas, grid: OccupancyGrid, scen
                           pc.speed_fraction * abs(lim.v_min), pc.yaw_rate_fraction * scenario.robot.w_max,
                           pc.accel_fraction * scenario.robot.a_max, pc.yaw_rate_fraction * lim.alpha_max,
                           pc.lateral_accel, info={"corridor_plan_ms": plan.info.get("timing_ms", {}).get("total")},
-                          raster=res.raster)
+                          raster=res.raster, margin=mpc.box_margin)
     if new is None:
         return _replace(plan, info=dict(plan.info, pose_route_fallback=why, pose_search_ms=res.time_ms))
     return new

@@ -14,16 +14,21 @@ the spot. From it:
   finite differences (speed: the displacement projected on the heading, so it is negative
   when reversing; yaw rate: the yaw change), the last one (0, 0). Its yaw is the pose
   path's yaw, not the path tangent: it keeps the footprint where the search found room.
-- **Corridors, one per disc.** The safe areas each disc centre passes through, in order
-  (stay in an area while inside it, then enter the neighbouring area that holds the point
-  longest; areas may repeat when the path backs up). Each disc's stage assignment in
-  SA-MPC walks its own chain: on a diagonal staircase of small areas the discs of an arcing
-  body pass through different areas, and no single chain holds every disc's sequence as a
-  contiguous run (measured on barn_0003: a single chain from the body origin failed the
-  rear disc). Each trajectory is checked to be a monotone walk along its corridor (stay
-  while inside, else the next one); a path crossing exactly through a corner of two areas
-  fails the check and gives no plan (the caller keeps its own). ``Plan.corridor`` is the
-  corridor of the disc nearest the body origin.
+- **A chain per disc.** SA-MPC holds each disc centre of every predicted state in a stage
+  box of a chain of convex boxes (each a safe area or a bridge across the portal of two
+  adjacent areas, shrunk by ``box_margin``; consecutive ones overlap) with its own
+  monotone assignment. Each disc centre's dense trajectory gives its chain
+  (:func:`member_chain`): the member boxes it walks, staying on one while inside its
+  shrunk box and moving on where it lies in the shrunk intersection with the next.
+  One chain for all discs does not work on a diagonal staircase of small areas: the discs
+  of an arcing body pass through different areas, and no single sequence of areas holds
+  every disc's as a contiguous run (measured on barn_0003). Nor does a chain of *areas*
+  per disc: a centre that grazes the bridge region of a portal without crossing it (inside
+  the area, within the margin of its side) fits no area-to-area chain (barn_0026: the MPC
+  held the robot 3 cm off the route there and stalled). ``Plan.disc_corridors`` holds the
+  member indices into ``member_boxes(areas, 0)`` (areas first, then one bridge per edge);
+  ``Plan.corridor`` is the sequence of areas the disc nearest the body origin passes
+  (for the reference's ``area`` and the controller's other uses of the corridor).
 """
 
 from __future__ import annotations
@@ -35,7 +40,15 @@ from typing import Any
 import numpy as np
 
 from sanav_mj.mapping.safe_areas import SafeAreas
-from sanav_mj.planning.pose_search import REVERSE, SPIN, PointRaster, PoseRoute, disc_points, poses_free
+from sanav_mj.planning.pose_search import (
+    REVERSE,
+    SPIN,
+    PointRaster,
+    PoseRoute,
+    disc_points,
+    member_boxes,
+    poses_free,
+)
 from sanav_mj.planning.reference import Plan, Reference
 from sanav_mj.planning.timing import speed_profile
 
@@ -282,10 +295,74 @@ def chain_walk(rects: np.ndarray, corridor: np.ndarray, points: np.ndarray) -> n
     return pos
 
 
+def _shrink(box: np.ndarray, margin: float) -> np.ndarray:
+    """Boxes (..., 4) shrunk by ``margin`` per side, at most a quarter of each width (as
+    SA-MPC's :func:`sanav_mj.control.stages.shrink_box`)."""
+    w = box[..., 2:] - box[..., :2]
+    m = np.minimum(margin, 0.25 * np.maximum(w, 0.0))
+    return np.concatenate((box[..., :2] + m, box[..., 2:] - m), axis=-1)
+
+
+def _in_boxes(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """(P, M) bool: point p in box m (closed, to 1e-9 m)."""
+    return ((points[:, None, 0] >= boxes[None, :, 0] - CONTAIN_TOL) & (points[:, None, 0] <= boxes[None, :, 2] + CONTAIN_TOL)
+            & (points[:, None, 1] >= boxes[None, :, 1] - CONTAIN_TOL) & (points[:, None, 1] <= boxes[None, :, 3] + CONTAIN_TOL))
+
+
+def member_chain(members: np.ndarray, points: np.ndarray, margin: float, tol: float = 0.005) -> np.ndarray | None:
+    """The chain of member boxes a disc centre's dense trajectory walks, or None.
+
+    Args:
+        members: (M, 4) [m] candidate member boxes, unshrunk (safe areas and portal bridges,
+            :func:`sanav_mj.planning.pose_search.member_boxes` with margin 0).
+        points: (P, 2) [m] the trajectory, dense (consecutive points closer than the margin).
+        margin: [m] SA-MPC's ``box_margin``.
+        tol: [m] a point may lie this far outside its boxes (the search checks its moves
+            every 2 cm of disc travel; the dense points are 1 cm apart and may graze a
+            corner between two checked poses by a few mm; SA-MPC's rows are exact).
+
+    Returns:
+        (L,) int member indices such that a monotone walk covers the points the way SA-MPC's
+        stage boxes do: each point in its member shrunk by ``margin`` (the stay box), and
+        where the walk moves on, the point in the shrunk intersection of the two members
+        (the advance box); consecutive members therefore overlap. The walk stays on a member
+        as long as the points do and then moves to the member (overlapping the current one)
+        that holds the following points longest. None when some point has no such member.
+    """
+    margin = max(0.0, margin - tol)
+    shrunk = _shrink(members, margin)
+    inside = _in_boxes(points, shrunk)
+    P = points.shape[0]
+    if not inside.any(axis=1).all():
+        return None
+    run = np.zeros(inside.shape, dtype=np.int32)
+    run[-1] = inside[-1]
+    for i in range(P - 2, -1, -1):
+        run[i] = np.where(inside[i], run[i + 1] + 1, 0)
+    cur = int(np.argmax(run[0]))
+    out = [cur]
+    for i in range(1, P):
+        if inside[i, cur]:
+            continue
+        # move on at point i - 1 (in the current member) to a member holding points i - 1 and i
+        cand = np.flatnonzero(inside[i - 1] & inside[i])
+        if cand.size:
+            inter = np.concatenate((np.maximum(members[cur, :2], members[cand, :2]),
+                                    np.minimum(members[cur, 2:], members[cand, 2:])), axis=1)
+            adv = _shrink(inter, max(0.0, margin - tol))  # a corner cut by a few mm between samples
+            okc = _in_boxes(points[i - 1:i], adv)[0] & np.all(inter[:, 2:] - inter[:, :2] > 1e-9, axis=1)
+            cand = cand[okc]
+        if cand.size == 0:
+            return None
+        cur = int(cand[np.argmax(run[i, cand])])
+        out.append(cur)
+    return np.array(out, dtype=np.int64)
+
+
 def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np.ndarray, dt: float,
                v_cap: float, v_rev_cap: float, w_cap: float, a_cap: float, alpha_cap: float,
                a_lat: float, info: dict[str, Any] | None = None,
-               raster: PointRaster | None = None) -> tuple[Plan | None, str]:
+               raster: PointRaster | None = None, margin: float = 0.02) -> tuple[Plan | None, str]:
     """A :class:`Plan` following a pose route, or ``(None, why)`` when its corridor does not
     cover every disc centre monotonically (see the module docstring).
 
@@ -298,6 +375,7 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
         v_cap, v_rev_cap: [m/s] speed caps forwards / backwards (> 0).
         w_cap: [rad/s], a_cap: [m/s^2], alpha_cap: [rad/s^2], a_lat: [m/s^2] limits.
         info: diagnostics to start the plan's ``info`` from.
+        margin: [m] SA-MPC's ``box_margin`` (the per-disc chains' boxes are shrunk by it).
         raster: the free set the route was searched on; given, the route is smoothed
             (:func:`smooth_route`) and the smoothed one used when every dense pose of it
             is free (``info["pose_smoothed"]``).
@@ -320,17 +398,30 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
                 P[lo:hi] = route.poses[lo:hi]
             sm = PoseRoute(P, sm.kinds, sm.cost, sm.nodes, sm.edges, sm.time_ms)
     rects = np.asarray(areas.rects, dtype=float)
+    boxes = member_boxes(areas, 0.0)
+
+    def disc_chains(dense: np.ndarray) -> tuple[list[np.ndarray] | None, str]:
+        discs = disc_points(dense[:, 0], dense[:, 1], dense[:, 2], offsets)
+        chains = []
+        for d in range(discs.shape[1]):
+            ch = member_chain(boxes, discs[:, d], margin)
+            if ch is None:
+                return None, f"disc {d} of the pose path has no chain of safe areas and portal bridges"
+            chains.append(ch)
+        return chains, "ok"
+
+    chains, why = disc_chains(dense)
+    if chains is None and smoothed:  # the lattice route itself
+        dense, kinds = densify(route, offsets)
+        smoothed = False
+        chains, why = disc_chains(dense)
+    if chains is None:
+        return None, why
     discs = disc_points(dense[:, 0], dense[:, 1], dense[:, 2], offsets)
-    corridors = []
-    for d in range(discs.shape[1]):
-        cor = corridor_of_points(areas, discs[:, d])
-        if cor is None:
-            return None, f"disc {d} of the pose path leaves the safe areas"
-        if chain_walk(rects, cor, discs[:, d]) is None:
-            return None, f"disc {d} of the pose path crosses a corner between safe areas"
-        corridors.append(cor)
     c = int(np.argmin(np.hypot(*offsets.T)))
-    corridor = corridors[c]
+    corridor = corridor_of_points(areas, discs[:, c])
+    if corridor is None or chain_walk(rects, corridor, discs[:, c]) is None:
+        return None, "the pose path's centre crosses a corner between safe areas"
     times = time_poses(dense, kinds, v_cap, v_rev_cap, w_cap, a_cap, alpha_cap, a_lat)
     states, inputs = sample_reference(dense, times, dt)
     pos = chain_walk(rects, corridor, disc_points(states[:, 0], states[:, 1], states[:, 2], offsets)[:, c])
@@ -348,4 +439,4 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
                route_ms=(time.perf_counter() - t0) * 1e3)
     wp = route.poses[:, :2].copy()
     return Plan(True, "ok", corridor, np.asarray(goal, float).copy(), wp, dense[:, :2].copy(), dense[:, :2].copy(),
-                ref, inf, tuple(corridors)), "ok"
+                ref, inf, tuple(chains)), "ok"

@@ -48,10 +48,11 @@ class Plan:
         info: diagnostics (plain numbers and strings): e.g. the smoothing weight finally
             used, how often it was halved, the length of path replaced by the interpolated
             polyline, path length and duration, per-stage wall times.
-        disc_corridors: None, or (footprint discs' plans, :func:`sanav_mj.planning.
-            pose_reference.route_plan`) one (C_d,) int corridor per disc of the footprint's
-            cover: the safe areas that disc's centre passes through, in order; ``corridor``
-            is the one of the disc nearest the body origin.
+        disc_corridors: None, or (a pose route's plan, :func:`sanav_mj.planning.
+            pose_reference.route_plan`) one (L_d,) int chain per disc of the footprint's
+            cover: indices into :func:`sanav_mj.planning.pose_search.member_boxes` (the
+            safe areas, then one portal bridge per edge of ``SafeAreas.edges``) of the
+            member boxes that disc's centre walks, in order.
     """
 
     ok: bool

@@ -28,7 +28,7 @@ def _plan(states, areas_idx, corridor, disc_corridors=None):
 def test_each_disc_walks_its_own_corridor():
     """A pose straddling three areas: rear disc in A, centre in C, front in B. One chain
     (A, C) for every disc leaves the front disc outside its boxes; each disc on its own
-    corridor (A; A, C; A, B) is inside."""
+    chain of areas and bridges (A; A, A-C, C; A, A-B, B) is inside."""
     areas = make_areas(RECTS)
     x = np.array([1.05, 0.55, -0.6])
     guess = np.tile(x, (DISCS.horizon + 1, 1))
@@ -39,8 +39,12 @@ def test_each_disc_walks_its_own_corridor():
     assert c[0, 0] < 1.0 and c[1, 1] > 0.5 and c[2, 0] > 1.0 and c[2, 1] < 0.5  # A, C, B
     _, _, exc = one.discs.stages(one._chains(), guess, None, 1e-9)
     assert exc > 0.01
-    per = SAMPC(ROBOT, areas, _plan(states, [0, 2, 2], [0, 2], ([0], [0, 2], [0, 1])), DISCS, footprint=FP)
+    # member indices: the areas, then one bridge per edge
+    bridge = {tuple(e): 3 + i for i, e in enumerate(np.asarray(areas.edges).tolist())}
+    members = ([0], [0, bridge[(0, 2)], 2], [0, bridge[(0, 1)], 1])
+    per = SAMPC(ROBOT, areas, _plan(states, [0, 2, 2], [0, 2], members), DISCS, footprint=FP)
     assert len(per.disc_chains) == 3 and len(per.disc_chains[0]) == 1 and len(per.disc_chains[2]) == 3
+    np.testing.assert_allclose(per.disc_chains[2].boxes[1], [0.0, 0.0, 2.0, 0.5])  # the A-B bridge
     ss, bs, exc = per.discs.stages(per._chains(), guess, None, 1e-9)
     assert exc == 0.0
     assert np.all(per.discs.margins(guess, bs) >= 0)
@@ -81,3 +85,15 @@ def test_config_rejects_an_unknown_route():
     with pytest.raises(ValueError, match="footprint_route"):
         MPCConfig(footprint_route="lattice")
     assert MPCConfig().footprint_route == "pose"
+
+
+def test_member_chain_must_overlap():
+    import pytest
+
+    from sanav_mj.control.disc_stages import member_chain_of
+
+    areas = make_areas(RECTS)
+    with pytest.raises(ValueError, match="overlap"):
+        member_chain_of(areas, [0, 2], 0.0)  # A and C only touch
+    with pytest.raises(ValueError, match="member indices"):
+        member_chain_of(areas, [0, 99], 0.0)

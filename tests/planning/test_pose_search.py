@@ -130,12 +130,20 @@ def test_route_plan_reference_and_corridors():
     # every reference sample's discs are free, and each disc walks its own corridor monotonically
     raster = PointRaster.build(member_boxes(areas, MARGIN), (0, 0), (4, 1), 0.005)
     assert poses_free(raster, ref.states, OFFSETS).all()
-    assert len(plan.disc_corridors) == 3
-    assert plan.corridor.tolist() == plan.disc_corridors[1].tolist() == [0, 1, 2]
-    for d, cor in enumerate(plan.disc_corridors):
-        c = ref.states[:, :2] + np.column_stack([np.cos(ref.states[:, 2]), np.sin(ref.states[:, 2])]) * OFFSETS[d, 0]
-        assert chain_walk(areas.rects, cor, c) is not None
+    assert plan.corridor.tolist() == [0, 1, 2]
     assert np.all(np.diff(np.searchsorted([0, 1, 2], ref.area)) >= 0)
+    assert chain_walk(areas.rects, plan.corridor, ref.states[:, :2]) is not None
+    # each disc's chain holds its centre the way SA-MPC's stage boxes do (the controller's code)
+    from sanav_mj.control.disc_stages import member_chain_of
+    from sanav_mj.control.stages import assign_stages, box_slack, stage_boxes
+
+    assert len(plan.disc_corridors) == 3
+    for d, members in enumerate(plan.disc_corridors):
+        chain = member_chain_of(areas, members, MARGIN)
+        c = ref.states[:, :2] + np.column_stack([np.cos(ref.states[:, 2]), np.sin(ref.states[:, 2])]) * OFFSETS[d, 0]
+        s = assign_stages(chain, c, tol=1e-9)
+        assert s[0] == 0 and s[-1] == len(chain) - 1
+        assert np.all(box_slack(c, stage_boxes(chain, s)) >= -1e-9)
 
 
 def test_reference_reverses_with_negative_speed():
