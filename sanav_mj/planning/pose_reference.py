@@ -165,8 +165,9 @@ def _spin_times(dyaw: np.ndarray, w_cap: float, alpha: float) -> np.ndarray:
 
 
 def time_poses(dense: np.ndarray, kinds: np.ndarray, v_cap: float, v_rev_cap: float, w_cap: float,
-               a_cap: float, alpha_cap: float, a_lat: float) -> np.ndarray:
-    """Times (Q,) [s] of the dense poses (Q, 3): runs of one kind of move timed rest to rest."""
+               a_cap: float, alpha_cap: float, a_lat: float, v_scale: np.ndarray | None = None) -> np.ndarray:
+    """Times (Q,) [s] of the dense poses (Q, 3): runs of one kind of move timed rest to rest;
+    ``v_scale`` (Q,) in (0, 1] scales the speed cap per pose (None: 1)."""
     t = np.zeros(dense.shape[0])
     q = dense.shape[0] - 1
     i = 0
@@ -184,6 +185,8 @@ def time_poses(dense: np.ndarray, kinds: np.ndarray, v_cap: float, v_rev_cap: fl
             kn[:-1] = ke
             kn[1:] = np.maximum(kn[1:], ke)
             vc = v_rev_cap if kinds[i] == REVERSE else v_cap
+            if v_scale is not None:
+                vc = vc * v_scale[i:j + 1]
             v = speed_profile(ds, kn, vc, w_cap, a_lat, a_cap)
             tt = np.zeros(seg.shape[0])
             np.cumsum(2.0 * ds / np.maximum(v[:-1] + v[1:], 1e-12), out=tt[1:])
@@ -362,7 +365,8 @@ def member_chain(members: np.ndarray, points: np.ndarray, margin: float, tol: fl
 def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np.ndarray, dt: float,
                v_cap: float, v_rev_cap: float, w_cap: float, a_cap: float, alpha_cap: float,
                a_lat: float, info: dict[str, Any] | None = None,
-               raster: PointRaster | None = None, margin: float = 0.02) -> tuple[Plan | None, str]:
+               raster: PointRaster | None = None, margin: float = 0.02, slow_clearance: float = 0.1,
+               slow_floor: float = 0.3) -> tuple[Plan | None, str]:
     """A :class:`Plan` following a pose route, or ``(None, why)`` when its corridor does not
     cover every disc centre monotonically (see the module docstring).
 
@@ -376,6 +380,10 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
         w_cap: [rad/s], a_cap: [m/s^2], alpha_cap: [rad/s^2], a_lat: [m/s^2] limits.
         info: diagnostics to start the plan's ``info`` from.
         margin: [m] SA-MPC's ``box_margin`` (the per-disc chains' boxes are shrunk by it).
+        slow_clearance, slow_floor: with ``raster``, the speed cap at a pose is scaled by
+            ``clip(c / slow_clearance, slow_floor, 1)``, ``c`` [m] the smallest clearance of
+            its disc centres in the free set (precise tracking where the footprint barely
+            fits); ``slow_clearance = 0``: no scaling.
         raster: the free set the route was searched on; given, the route is smoothed
             (:func:`smooth_route`) and the smoothed one used when every dense pose of it
             is free (``info["pose_smoothed"]``).
@@ -422,7 +430,11 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
     corridor = corridor_of_points(areas, discs[:, c])
     if corridor is None or chain_walk(rects, corridor, discs[:, c]) is None:
         return None, "the pose path's centre crosses a corner between safe areas"
-    times = time_poses(dense, kinds, v_cap, v_rev_cap, w_cap, a_cap, alpha_cap, a_lat)
+    v_scale = None
+    if raster is not None and slow_clearance > 0:
+        clr = raster.clearance_at(discs).min(axis=-1)
+        v_scale = np.clip(clr / slow_clearance, slow_floor, 1.0)
+    times = time_poses(dense, kinds, v_cap, v_rev_cap, w_cap, a_cap, alpha_cap, a_lat, v_scale)
     states, inputs = sample_reference(dense, times, dt)
     pos = chain_walk(rects, corridor, disc_points(states[:, 0], states[:, 1], states[:, 2], offsets)[:, c])
     if pos is None:  # the samples are points of the dense path; guard
