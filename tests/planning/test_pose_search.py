@@ -156,3 +156,27 @@ def test_reference_reverses_with_negative_speed():
     assert plan is not None, why
     v = plan.reference.inputs[:, 0]
     assert v.min() < -0.2 and v.max() <= 1e-12 and v.min() >= -0.3 - 1e-9
+
+
+def test_spin_and_translation_timing_known_answers():
+    from sanav_mj.planning.pose_reference import SPIN as _SPIN, _spin_times, time_poses
+
+    # rest-to-rest turn of pi/2 at w_cap = 1 rad/s, alpha = 1 rad/s^2: 1 s up, 0.5708 s cruise, 1 s down
+    th = np.linspace(0.0, math.pi / 2, 50)
+    t = _spin_times(th, 1.0, 1.0)
+    assert t[-1] == pytest.approx(2.0 + (math.pi / 2 - 1.0), abs=1e-12)
+    assert np.all(np.diff(t) > 0)
+    # a 2 m straight run, cap 1 m/s (a = 1 m/s^2): the speed scale 0.5 makes it a 0.5 m/s
+    # trapezoid (0.5 s up, 3.5 s cruise, 0.5 s down); the nodes are 1 cm apart: the profile
+    # is exact where the acceleration changes at a node (the unscaled run: at 0.5 m) and
+    # otherwise off by less than one node interval at cruise speed (0.01 m / 0.5 m/s)
+    x = np.linspace(0.0, 2.0, 201)
+    dense = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    kinds = np.full(200, FORWARD)
+    full = time_poses(dense, kinds, 1.0, 0.3, 1.0, 1.0, 1.0, 1.0)
+    half = time_poses(dense, kinds, 1.0, 0.3, 1.0, 1.0, 1.0, 1.0, v_scale=np.full(201, 0.5))
+    assert full[-1] == pytest.approx(3.0, abs=1e-9)  # 1 s up, 1 s cruise, 1 s down
+    assert half[-1] == pytest.approx(4.5, abs=0.01 / 0.5)
+    assert half[-1] > full[-1] + 1.4
+    spin = time_poses(np.column_stack([np.zeros(50), np.zeros(50), th]), np.full(49, _SPIN), 1.0, 0.3, 1.0, 1.0, 1.0, 1.0)
+    assert spin[-1] == pytest.approx(t[-1], abs=1e-12)
