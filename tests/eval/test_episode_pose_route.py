@@ -20,8 +20,8 @@ def _areas(rects):
     """SafeAreas of rectangles on the 5 cm grid from the origin (via the mapping stage's graph)."""
     from sanav_mj.mapping.safe_areas import connectivity
 
-    boxes = np.rint(np.asarray(rects, float) / 0.05).astype(np.int64)
-    return connectivity(boxes, np.zeros(2), 0.05)
+    xy = np.rint(np.asarray(rects, float) / 0.05).astype(np.int64)  # x0, y0, x1, y1 in cells
+    return connectivity(xy[:, [1, 0, 3, 2]], np.zeros(2), 0.05)  # cell boxes are [row0, col0, row1, col1)
 
 
 def _grid(nx, ny):
