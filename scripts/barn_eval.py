@@ -140,7 +140,10 @@ def cmd_closed_loop(args) -> int:
     if args.footprint == "discs":
         spec = ControllerSpec("sa-mpc", replace(ControllerSpec().sa_mpc, footprint="discs",
                                                  footprint_discs=args.discs, footprint_margin=args.margin,
-                                                 footprint_narrow_penalty=args.narrow_penalty))
+                                                 footprint_narrow_penalty=args.narrow_penalty,
+                                                 footprint_route=args.route,
+                                                 box_margin=(ControllerSpec().sa_mpc.box_margin if args.box_margin is None
+                                                             else args.box_margin)))
     else:
         # Measurement knob: the run path has no margin argument for the circumscribed disc,
         # so the module default is set for this process only (prepare() reads it).
@@ -213,6 +216,11 @@ def main(argv: list[str] | None = None) -> int:
                         "and the disc centres in the MPC (MPCConfig.footprint)")
     c.add_argument("--discs", type=int, default=3, help="discs of the cover (--footprint discs)")
     c.add_argument("--seeds", type=int, nargs="+", default=[0])
+    c.add_argument("--route", choices=("pose", "corridor"), default="pose",
+                   help="discs mode: corridor and reference from the pose search or the corridor planner "
+                        "(MPCConfig.footprint_route)")
+    c.add_argument("--box-margin", type=float, default=None,
+                   help="[m] discs mode: MPCConfig.box_margin (default: the config's)")
     c.add_argument("--narrow-penalty", type=float, default=2.0,
                    help="[m] discs mode: corridor weight added per edge through a place too narrow to turn")
     c.add_argument("--resolution", type=float, default=0.05)
