@@ -42,6 +42,10 @@ from sanav_mj.scene import RobotParams
 
 __all__ = ["SAMPC", "MPCConfig", "StepInfo", "SafeAreaPenalty"]
 
+#: [m] disc-centre distance (position and sweep x yaw) within which the robot has reached a
+#: stop of a pose route's reference (see :meth:`SAMPC.reference`).
+STOP_REACHED_M = 0.02
+
 
 def _resample(ref: Reference, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Reference states (K', 3), inputs (K', 2) and areas (K',) resampled to period ``dt`` [s].
@@ -341,6 +345,9 @@ class SAMPC(TrackingMPC):
         self.areas, self._rects, self.plan = areas, np.asarray(areas.rects, dtype=float), plan
         self.chain, self.ref_states, self.ref_inputs, self._ref_chain = _plan_tables(areas, plan, box_margin, dt)
         self._sa_cache: dict[tuple[int, int], np.ndarray] = {}
+        st = plan.reference.stops
+        #: the reference's stops at the MPC period (None: the horizon never holds)
+        self._stops = None if st is None else np.unique(np.rint(np.asarray(st, float) * plan.reference.dt / dt).astype(int))
         dc = getattr(plan, "disc_corridors", None)
         #: ``"discs"`` with a pose route: one chain per disc (else the corridor's chain for all)
         self.disc_chains = None if dc is None else [member_chain_of(areas, c, box_margin) for c in dc]
@@ -500,14 +507,26 @@ class SAMPC(TrackingMPC):
         win = self.config.reference_window or self.N
         lo = self._ref_index
         hi = min(k, lo + win + 1)
+        stop = self._next_stop(lo)
+        if stop is not None:
+            hi = min(hi, stop + 1)
         seg = self.ref_states[lo:hi, :2] - pos[:2]
         d2 = np.einsum("ij,ij->i", seg, seg)
         if self.discs is not None and pos.shape[0] > 2:
             dyaw = (self.ref_states[lo:hi, 2] - pos[2] + np.pi) % (2 * np.pi) - np.pi
             d2 = d2 + (self.discs.sweep * dyaw) ** 2
         i = lo + int(np.argmin(d2))
+        if stop is not None and i < stop < hi and d2[stop - lo] < STOP_REACHED_M**2:
+            i = stop  # arrived at the stop: the motion after it comes into view
         self._ref_index = i
         return i
+
+    def _next_stop(self, i: int) -> int | None:
+        """The first stop of the reference after sample ``i`` (None: none, or no stops)."""
+        if self._stops is None:
+            return None
+        j = int(np.searchsorted(self._stops, i, side="right"))
+        return int(self._stops[j]) if j < len(self._stops) else None
 
     def reference(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Reference states (N+1, 3) and inputs (N, 2) for the horizon starting at ``pose``.
@@ -520,9 +539,14 @@ class SAMPC(TrackingMPC):
         i = self._progress(pose[:2] if self.discs is None else pose[:3])
         k = len(self.ref_states)
         idx = np.minimum(np.arange(i, i + self.N + 1), k - 1)
+        stop = self._next_stop(i)
+        held = np.zeros(idx.size, dtype=bool)
+        if stop is not None:  # a pose route: hold the horizon at its next stop
+            held = np.arange(i, i + self.N + 1) >= stop
+            idx = np.minimum(idx, stop)
         xr = self.ref_states[idx].copy()
         ur = self.ref_inputs[idx[:-1]].copy()
-        ur[idx[:-1] >= k - 1] = 0.0
+        ur[(idx[:-1] >= k - 1) | held[:-1]] = 0.0
         xr[:, 2] += 2 * np.pi * np.round((pose[2] - xr[0, 2]) / (2 * np.pi))
         self._horizon_idx = idx
         return xr, ur

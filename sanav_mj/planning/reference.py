@@ -21,12 +21,17 @@ class Reference:
             the previous sample's); consecutive samples share an area or lie in consecutive
             corridor areas, except that a corridor area the reference crosses in less than
             one step can be stepped over (no sample falls inside it).
+        stops: None, or (S,) int increasing sample indices where the reference comes to rest
+            between motions of different kinds (a pose route's cusps: forward / backward /
+            turning on the spot); SA-MPC's horizon does not look past the next stop until
+            the robot has reached it.
     """
 
     dt: float
     states: np.ndarray
     inputs: np.ndarray
     area: np.ndarray
+    stops: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.states.shape[0])

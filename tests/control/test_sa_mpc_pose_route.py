@@ -97,3 +97,34 @@ def test_member_chain_must_overlap():
         member_chain_of(areas, [0, 2], 0.0)  # A and C only touch
     with pytest.raises(ValueError, match="member indices"):
         member_chain_of(areas, [0, 99], 0.0)
+
+
+def test_horizon_holds_at_the_next_stop_until_the_robot_arrives():
+    """A route that drives forward to a stop, then on: the horizon repeats the stop pose
+    with zero inputs until the robot is within STOP_REACHED_M of it."""
+    from sanav_mj.control.sa_mpc import STOP_REACHED_M
+
+    areas = make_areas([[0.0, 0.0, 4.0, 1.0]])
+    x = np.concatenate([np.linspace(0.5, 1.4, 10), [1.49, 1.5], np.linspace(1.6, 3.5, 20)])  # stop: sample 11
+    states = np.column_stack([x, np.full(x.size, 0.5), np.zeros(x.size)])
+    ref = Reference(0.1, states, np.column_stack([np.full(x.size, 1.0), np.zeros(x.size)]), np.zeros(x.size, int),
+                    stops=np.array([11]))
+    plan = Plan(True, "ok", np.array([0]), states[-1, :2].copy(), states[:, :2], states[:, :2], states[:, :2], ref)
+    ctl = SAMPC(ROBOT, areas, plan, DISCS, footprint=FP)
+    ctl.reset(np.array([0.5, 0.5, 0.0]), progress=0)
+    xr, ur = ctl.reference(np.array([0.9, 0.5, 0.0]))
+    assert ctl.progress_index == 4
+    np.testing.assert_array_equal(xr[7:], np.tile(states[11], (ctl.N + 1 - 7, 1)))
+    assert np.all(ur[7:] == 0) and np.all(ur[:7, 0] == 1.0)
+    # nearest to the sample before the stop, but within the arrival distance of the stop:
+    # the motion after it comes into view
+    xr, ur = ctl.reference(np.array([1.5 - 0.8 * STOP_REACHED_M, 0.5, 0.0]))
+    assert abs(1.5 - 0.8 * STOP_REACHED_M - 1.49) < 0.8 * STOP_REACHED_M  # nearer the sample before
+    assert ctl.progress_index == 11
+    np.testing.assert_array_equal(xr[1:4, 0], x[12:15])
+    # without stops (the corridor planner's reference) the horizon runs on
+    plain = SAMPC(ROBOT, areas, Plan(True, "ok", np.array([0]), states[-1, :2].copy(), states[:, :2], states[:, :2],
+                                     states[:, :2], Reference(0.1, states, ref.inputs, ref.area)), DISCS, footprint=FP)
+    plain.reset(np.array([0.5, 0.5, 0.0]), progress=0)
+    xr, _ = plain.reference(np.array([0.9, 0.5, 0.0]))
+    np.testing.assert_array_equal(xr[:, 0], x[np.minimum(np.arange(4, 4 + plain.N + 1), x.size - 1)])
