@@ -9,6 +9,19 @@ in the last: one convex box for all of them could never pass an L-turn of a stri
 than the disc spacing), the row bounds in the OCP's order, the margins, the braking
 fallback's clearance and where the robot may turn on the spot. :class:`StallEscape` gives
 the escape warm starts of a stalled plan (see its docstring).
+
+**Pose route** (a plan from :mod:`sanav_mj.planning.pose_reference`, ``Plan.disc_corridors``
+set): each disc centre has its own chain of member boxes (safe areas and portal bridges,
+:func:`member_chain_of`) that the reference's disc centre walks; the rows are the same (each
+centre in a shrunk box of its chain, consecutive boxes overlapping, every box inside the
+safe areas), so SA-MPC's safety argument holds per disc. The reference's yaw is the
+route's, so SA-MPC does not retarget it to the exit of the area; the progress is found in
+disc-centre distance (a turn on the spot holds the position), and the horizon is held at
+the reference's next stop (``Reference.stops``: a cusp or a turn on the spot,
+:func:`next_stop`) until the robot is within ``STOP_REACHED_M`` of it, so the plan does not
+blend the motions before and after it (the robot turned early at such places and stalled:
+barn_0052). J_SA's slots are the areas all discs' assignments span, all or none
+(:func:`sa_params_of_ids`).
 """
 
 from __future__ import annotations
@@ -61,6 +74,31 @@ def member_chain_of(areas, members: np.ndarray, margin: float) -> CorridorChain:
     adv[0] = stay[0]
     adv[1:] = shrink_box(inter, margin)
     return CorridorChain(boxes, pairs, stay, adv)
+
+
+def next_stop(stops: np.ndarray | None, i: int) -> int | None:
+    """The first of the reference's ``stops`` (S,) int (increasing) after sample ``i``; None
+    when there is none or ``stops`` is None."""
+    if stops is None:
+        return None
+    j = int(np.searchsorted(stops, i, side="right"))
+    return int(stops[j]) if j < len(stops) else None
+
+
+def sa_params_of_ids(rects: np.ndarray, ids: list[int], slots: int, q_sa: np.ndarray, margin: float) -> np.ndarray:
+    """J_SA slot parameters (6 * slots,) for the safe areas ``ids`` (shrunk by ``margin`` [m],
+    priorities ``q_sa``), all or none: no slot is active when there are more areas than
+    slots (see :func:`~sanav_mj.control.stages.safe_area_params`)."""
+    from sanav_mj.control.stages import shrink_box
+
+    if len(ids) > slots:
+        ids = []
+    theta = np.zeros((slots, 6))
+    theta[: len(ids), :4] = shrink_box(np.asarray(rects, float)[ids], margin)
+    theta[: len(ids), 4] = q_sa[: len(ids)]
+    theta[: len(ids), 5] = 1.0
+    theta[len(ids):, 2:4] = 1.0
+    return theta.ravel()
 
 
 #: steps at rest before an escape guess is tried (see :class:`StallEscape`).

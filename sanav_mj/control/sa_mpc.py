@@ -20,7 +20,7 @@ import numpy as np
 
 from sanav_mj.control.adaptation import PlantAdaptation
 from sanav_mj.control.config import MPCConfig
-from sanav_mj.control.disc_stages import DiscCover, StallEscape, member_chain_of
+from sanav_mj.control.disc_stages import DiscCover, StallEscape, member_chain_of, next_stop, sa_params_of_ids
 from sanav_mj.control.problem import build_tracking_ocp
 from sanav_mj.control.stages import (
     CorridorChain,
@@ -84,6 +84,60 @@ def _plan_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
     return chain, states, inputs, out
 
 
+def _disc_constraints(ctl: SAMPC, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray, guess: np.ndarray) -> Constraints:
+    """:meth:`SAMPC.constrain` in ``"discs"`` mode: per-disc stages; exit targets and J_SA
+    slots of the chain, or for a pose route (one chain per disc) the planned targets and the
+    areas every disc's assignment spans (:mod:`sanav_mj.control.disc_stages`)."""
+    ss, bs, excursion = ctl.discs.stages(ctl._chains(), guess, ctl._s_prev_d, ctl._check_tol)
+    c = ctl.discs.centre
+    if ctl.disc_chains is None:
+        xr, ur = exit_targets(ctl.chain, ctl._ref_chain[ctl._horizon_idx], x_ref, u_ref, ss[c], x0[:2], float(x0[2]))
+        theta = ctl._sa_params(np.array([ss[:, 0].min(), ss[:, -1].max()]))
+    else:  # a pose route: its reference walks every disc's chain; targets stay as planned
+        xr, ur = x_ref, u_ref
+        theta = sa_params_of_ids(ctl._rects, DiscCover.area_ids(ctl.disc_chains, ss), ctl.penalty.n_slots,
+                                 ctl._q_sa, ctl.config.box_margin)
+    return Constraints(*DiscCover.bounds(bs), theta, xr, ur, excursion, (ss[c], bs[c], ss, bs))
+
+
+def _pose_route_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
+    """A pose route's stops (S,) int at period ``dt`` [s] and one chain per disc; (None,
+    None) for other plans (the horizon never holds; one chain for all discs)."""
+    st, dc = plan.reference.stops, getattr(plan, "disc_corridors", None)
+    stops = None if st is None else np.unique(np.rint(np.asarray(st, float) * plan.reference.dt / dt).astype(int))
+    return stops, (None if dc is None else [member_chain_of(areas, c, box_margin) for c in dc])
+
+
+def _nearest_sample(ref_states: np.ndarray, lo: int, hi: int, pos: np.ndarray, sweep: float | None,
+                    stops: np.ndarray | None) -> int:
+    """Index of the reference sample in ``[lo, hi)`` nearest ``pos`` (2,) [m]; with ``sweep``
+    [m], nearest the pose ``pos`` (3,) in disc-centre distance ``|dp|^2 + (sweep dyaw)^2``;
+    with ``stops``, not past the next stop, and the stop itself once within
+    :data:`STOP_REACHED_M` of it."""
+    stop = next_stop(stops, lo)
+    if stop is not None:
+        hi = min(hi, stop + 1)
+    seg = ref_states[lo:hi, :2] - pos[:2]
+    d2 = np.einsum("ij,ij->i", seg, seg)
+    if sweep is not None:
+        dyaw = (ref_states[lo:hi, 2] - pos[2] + np.pi) % (2 * np.pi) - np.pi
+        d2 = d2 + (sweep * dyaw) ** 2
+    i = lo + int(np.argmin(d2))
+    if stop is not None and i < stop < hi and d2[stop - lo] < STOP_REACHED_M**2:
+        i = stop  # arrived at the stop: the motion after it comes into view
+    return i
+
+
+def _horizon_indices(i: int, n: int, k: int, stops: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Reference sample indices (n+1,) of the horizon from sample ``i`` of ``k`` (the last
+    held) and which are held at the next stop (n+1,) bool (their inputs are zero)."""
+    idx = np.minimum(np.arange(i, i + n + 1), k - 1)
+    stop = next_stop(stops, i)
+    if stop is None:
+        return idx, np.zeros(idx.size, dtype=bool)
+    return np.minimum(idx, stop), np.arange(i, i + n + 1) >= stop
+
+
 @dataclass(frozen=True)
 class StepInfo:
     """The problem data of the last step (for inspection, recording and tests).
@@ -127,6 +181,8 @@ class SAMPC(TrackingMPC):
     each centre with its own stage assignment and boxes in a map inflated by the disc radius
     (see :meth:`constrain`, :meth:`turn_allowed`); docs/results.md ("Tight spaces") gives
     what it measured.
+
+    **Pose route** (``Plan.disc_corridors`` set): see :mod:`sanav_mj.control.disc_stages`.
 
     Each step: update the actuation monitor with the measured velocity, filter the measured
     pose with the measured velocity, predict the state
@@ -345,12 +401,7 @@ class SAMPC(TrackingMPC):
         self.areas, self._rects, self.plan = areas, np.asarray(areas.rects, dtype=float), plan
         self.chain, self.ref_states, self.ref_inputs, self._ref_chain = _plan_tables(areas, plan, box_margin, dt)
         self._sa_cache: dict[tuple[int, int], np.ndarray] = {}
-        st = plan.reference.stops
-        #: the reference's stops at the MPC period (None: the horizon never holds)
-        self._stops = None if st is None else np.unique(np.rint(np.asarray(st, float) * plan.reference.dt / dt).astype(int))
-        dc = getattr(plan, "disc_corridors", None)
-        #: ``"discs"`` with a pose route: one chain per disc (else the corridor's chain for all)
-        self.disc_chains = None if dc is None else [member_chain_of(areas, c, box_margin) for c in dc]
+        self._stops, self.disc_chains = _pose_route_tables(areas, plan, box_margin, dt)
 
     def replace_plan(self, areas: SafeAreas, plan: Plan) -> None:
         """Follow a new corridor and reference (a successful plan on ``areas`` starting at the
@@ -406,35 +457,11 @@ class SAMPC(TrackingMPC):
                                   float(x0[2]))
             return Constraints(boxes_c[1:, :2].ravel(), boxes_c[1:, 2:].ravel(), self._sa_params(s), xr, ur,
                                excursion, (s, boxes_c))
-        ss, bs, excursion = self.discs.stages(self._chains(), guess, self._s_prev_d, self._check_tol)
-        c = self.discs.centre
-        if self.disc_chains is None:
-            xr, ur = exit_targets(self.chain, self._ref_chain[self._horizon_idx], x_ref, u_ref, ss[c], x0[:2],
-                                  float(x0[2]))
-            theta = self._sa_params(np.array([ss[:, 0].min(), ss[:, -1].max()]))
-        else:  # a pose route: its reference walks every disc's chain; targets stay as planned
-            xr, ur = x_ref, u_ref
-            theta = self._sa_params_ids(DiscCover.area_ids(self.disc_chains, ss))
-        return Constraints(*DiscCover.bounds(bs), theta, xr, ur, excursion, (ss[c], bs[c], ss, bs))
+        return _disc_constraints(self, x0, x_ref, u_ref, guess)
 
     def _chains(self):
         """The chain(s) of the disc rows: one per disc for a pose route, else the corridor's."""
         return self.chain if self.disc_chains is None else self.disc_chains
-
-    def _sa_params_ids(self, ids: list[int]) -> np.ndarray:
-        """J_SA slot parameters (6 * slots,) for the safe areas ``ids``, all or none (see
-        :func:`~sanav_mj.control.stages.safe_area_params`)."""
-        from sanav_mj.control.stages import shrink_box
-
-        slots = self.penalty.n_slots
-        if len(ids) > slots:
-            ids = []
-        theta = np.zeros((slots, 6))
-        theta[: len(ids), :4] = shrink_box(self._rects[ids], self.config.box_margin)
-        theta[: len(ids), 4] = self._q_sa[: len(ids)]
-        theta[: len(ids), 5] = 1.0
-        theta[len(ids):, 2:4] = 1.0
-        return theta.ravel()
 
     def _guess_inputs(self) -> np.ndarray:
         """The warm start; in ``"discs"`` mode an escape guess once stalled (:class:`StallEscape`)."""
@@ -504,29 +531,12 @@ class SAMPC(TrackingMPC):
         one; ``"discs"``: nearest the pose ``pos`` (3,) in disc-centre distance
         ``|dp|^2 + (sweep dyaw)^2`` (a reference that turns on the spot holds its position)."""
         k = len(self.ref_states)
-        win = self.config.reference_window or self.N
         lo = self._ref_index
-        hi = min(k, lo + win + 1)
-        stop = self._next_stop(lo)
-        if stop is not None:
-            hi = min(hi, stop + 1)
-        seg = self.ref_states[lo:hi, :2] - pos[:2]
-        d2 = np.einsum("ij,ij->i", seg, seg)
-        if self.discs is not None and pos.shape[0] > 2:
-            dyaw = (self.ref_states[lo:hi, 2] - pos[2] + np.pi) % (2 * np.pi) - np.pi
-            d2 = d2 + (self.discs.sweep * dyaw) ** 2
-        i = lo + int(np.argmin(d2))
-        if stop is not None and i < stop < hi and d2[stop - lo] < STOP_REACHED_M**2:
-            i = stop  # arrived at the stop: the motion after it comes into view
+        hi = min(k, lo + (self.config.reference_window or self.N) + 1)
+        sweep = self.discs.sweep if self.discs is not None and pos.shape[0] > 2 else None
+        i = _nearest_sample(self.ref_states, lo, hi, pos, sweep, self._stops)
         self._ref_index = i
         return i
-
-    def _next_stop(self, i: int) -> int | None:
-        """The first stop of the reference after sample ``i`` (None: none, or no stops)."""
-        if self._stops is None:
-            return None
-        j = int(np.searchsorted(self._stops, i, side="right"))
-        return int(self._stops[j]) if j < len(self._stops) else None
 
     def reference(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Reference states (N+1, 3) and inputs (N, 2) for the horizon starting at ``pose``.
@@ -538,12 +548,7 @@ class SAMPC(TrackingMPC):
         """
         i = self._progress(pose[:2] if self.discs is None else pose[:3])
         k = len(self.ref_states)
-        idx = np.minimum(np.arange(i, i + self.N + 1), k - 1)
-        stop = self._next_stop(i)
-        held = np.zeros(idx.size, dtype=bool)
-        if stop is not None:  # a pose route: hold the horizon at its next stop
-            held = np.arange(i, i + self.N + 1) >= stop
-            idx = np.minimum(idx, stop)
+        idx, held = _horizon_indices(i, self.N, k, self._stops)
         xr = self.ref_states[idx].copy()
         ur = self.ref_inputs[idx[:-1]].copy()
         ur[(idx[:-1] >= k - 1) | held[:-1]] = 0.0
