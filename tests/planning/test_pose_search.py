@@ -180,3 +180,19 @@ def test_spin_and_translation_timing_known_answers():
     assert half[-1] > full[-1] + 1.4
     spin = time_poses(np.column_stack([np.zeros(50), np.zeros(50), th]), np.full(49, _SPIN), 1.0, 0.3, 1.0, 1.0, 1.0, 1.0)
     assert spin[-1] == pytest.approx(t[-1], abs=1e-12)
+
+
+def test_stops_mark_where_the_motion_kind_changes():
+    # the L with a wide corner cell: the route turns on the spot there
+    areas, res = _search([[0, 0.45, 2.0, 0.55], [2.0, 0.25, 2.5, 0.75], [2.2, 0.75, 2.3, 2.5]], (50, 50),
+                         (0.3, 0.5, 0.0), (2.25, 2.2))
+    args = (areas, res.route, np.array([2.25, 2.2]), OFFSETS, 0.1, 1.0, 0.3, 1.5, 1.0, 3.0, 1.0)
+    assert route_plan(*args)[0].reference.stops is None  # off by default
+    plan, _ = route_plan(*args, hold_at_stops=True)
+    ref = plan.reference
+    changes = int(np.sum(res.route.kinds[1:] != res.route.kinds[:-1]))
+    assert changes >= 1 and 1 <= ref.stops.size <= changes
+    # the reference is at rest at each stop (its motion runs are timed rest to rest)
+    v = np.abs(ref.inputs[:, 0]) + 0.17 * np.abs(ref.inputs[:, 1])
+    for s in ref.stops:
+        assert min(v[max(0, s - 1)], v[s]) < 0.15
