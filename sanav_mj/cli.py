@@ -34,7 +34,13 @@ class _Parser(argparse.ArgumentParser):
     """argparse with one-line errors and exit code 2."""
 
     def error(self, message: str) -> NoReturn:  # noqa: D401 - argparse API
-        raise BadInput(f"{self.prog}: {message}")
+        # argparse prefixes a type error with "argument NAME: "; our type errors already start
+        # with the argument's name, so keep it once ("--seed: expected ...")
+        m = re.match(r"argument ([^:]+): (.*)$", message, re.S)
+        if m and m.group(2).startswith(m.group(1) + ":"):
+            message = m.group(2)
+        prog = self.prog[len("sanav-mj "):] if self.prog.startswith("sanav-mj ") else self.prog
+        raise BadInput(f"{prog}: {message}" if prog != "sanav-mj" else message)
 
 
 def _float_arg(name: str, positive: bool = False):
@@ -157,6 +163,9 @@ def build_parser() -> argparse.ArgumentParser:
     # (the metavars name the unit: M metres, S seconds, RAD radians, N a count)
     sensing_help = ("map: the grid from the scenario's true geoms; lidar: the robot maps with its own lidar "
                     "as it drives (sa-mpc only) (default: %(default)s)")
+    footprint_help = ("SA-MPC's robot body: disc (the circumscribed disc, the paper's) or discs (the footprint "
+                      "rectangle covered by discs whose centres stay in the safe areas of a map inflated by "
+                      "their radius; sa-mpc and --sensing map only) (default: %(default)s)")
     resume_help = ("keep the finished runs journalled in OUT/runs.jsonl (same settings) and run the rest "
                    "(default: start afresh)")
 
@@ -165,6 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="output folder (default: %(default)s)")
     d.add_argument("--no-rrd", action="store_true", help="skip the rerun recordings (default: write them)")
     d.add_argument("--sensing", choices=SENSING, default="map", help=sensing_help)
+    d.add_argument("--footprint", choices=FOOTPRINTS, default="disc", help=footprint_help)
 
     map_help = scenario_help + ", or a ROS map_server map (.yaml) with --start and --goal"
     start_help = "start pose x [m] y [m] yaw [rad] on a ROS map (.yaml) (default: none)"
@@ -207,6 +217,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                   ".png (also without one), .pdf, .svg, ... (default: none)")
     r.add_argument("--mismatch", nargs="+", default=[], metavar="KEY=VALUE", help=mismatch_help())
     r.add_argument("--sensing", choices=SENSING, default="map", help=sensing_help)
+    r.add_argument("--footprint", choices=FOOTPRINTS, default="disc", help=footprint_help)
     r.add_argument("--time-limit", type=_time_limit, default=60.0, metavar="S",
                    help=f"simulated time limit [s], 0 < S <= {MAX_TIME_LIMIT_S:g} (default: %(default)s)")
 
@@ -222,6 +233,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--rrd", action="store_true", help="also record each run to OUT/rrd/ (default: no)")
     b.add_argument("--resume", action="store_true", help=resume_help)
     b.add_argument("--sensing", choices=SENSING, default="map", help=sensing_help)
+    b.add_argument("--footprint", choices=FOOTPRINTS, default="disc", help=footprint_help)
     b.add_argument("--ray", nargs="?", const=True, default=None, metavar="ADDRESS",
                    type=_ray_address, help=RAY_HELP)
 
@@ -244,6 +256,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="output folder (default: %(default)s)")
     rb.add_argument("--resume", action="store_true", help=resume_help)
     rb.add_argument("--sensing", choices=SENSING, default="map", help=sensing_help)
+    rb.add_argument("--footprint", choices=FOOTPRINTS, default="disc", help=footprint_help)
     rb.add_argument("--ray", nargs="?", const=True, default=None, metavar="ADDRESS",
                    type=_ray_address, help=RAY_HELP)
     return p
@@ -345,6 +358,23 @@ def _check_outputs(named: dict[str, Path | None]) -> None:
 #: the ``--sensing`` choices
 SENSING = ("map", "lidar")
 
+#: the ``--footprint`` choices (:attr:`sanav_mj.control.config.MPCConfig.footprint`)
+FOOTPRINTS = ("disc", "discs")
+
+
+def _check_footprint(footprint: str, sensing: str, controllers: list[str], option: str = "--controller") -> None:
+    """``--footprint discs`` is an SA-MPC setting with the known map: any other controller, or
+    ``--sensing lidar``, is bad input (exit 2)."""
+    if footprint == "disc":
+        return
+    other = [c for c in controllers if c != "sa-mpc"]
+    if other:
+        raise BadInput(f"--footprint {footprint}: supported for the sa-mpc controller only, got {option} {' '.join(other)}")
+    if sensing != "map":
+        raise BadInput(f"--footprint {footprint}: supported with --sensing map only, got --sensing {sensing}")
+
+
+
 
 def _check_sensing(sensing: str, controllers: list[str], option: str = "--controller") -> None:
     """``--sensing lidar`` runs SA-MPC only; any other controller is bad input (exit 2)."""
@@ -428,16 +458,18 @@ def _cmd_areas(args) -> int:
 
 def _cmd_run(args) -> int:
     from sanav_mj.api import run_scenario  # the CLI is a thin layer over the Python API
+    from sanav_mj.eval.episode import footprint_spec
     from sanav_mj.sim.mismatch import parse_mismatch
 
     mismatch = parse_mismatch(args.mismatch)
     _check_sensing(args.sensing, [args.controller])
+    _check_footprint(args.footprint, args.sensing, [args.controller])
     outputs = {"--json": args.json, "--rrd": args.rrd, "--plot": args.plot}
     _distinct_outputs(outputs)
     _check_outputs(outputs)
     out = run_scenario(
         _scenario_of(args),
-        controller=args.controller,
+        controller=footprint_spec(args.controller, args.footprint),
         seed=args.seed,
         yaw=args.yaw,
         resolution=args.resolution,
@@ -520,8 +552,9 @@ def run_line(doc: dict) -> str:
 def _cmd_demo(args) -> int:
     from sanav_mj.eval.demo import run_demo, summary_table
 
+    _check_footprint(args.footprint, args.sensing, ["sa-mpc"])
     _check_out_dir(args.out)
-    result = run_demo(args.out, record=not args.no_rrd, sensing=args.sensing)
+    result = run_demo(args.out, record=not args.no_rrd, sensing=args.sensing, footprint=args.footprint)
     print(summary_table(result.rows), end="")
     kinds = "recordings (.rrd), plots (.png) and JSON" if not args.no_rrd else "plots (.png) and JSON (no recordings: --no-rrd)"
     print(f"wrote {kinds} to {args.out}/" if not result.failed else
@@ -537,10 +570,11 @@ def _cmd_bench(args) -> int:
     from sanav_mj.eval.bench import markdown_table, run_bench
 
     _check_sensing(args.sensing, args.controllers, "--controllers")
+    _check_footprint(args.footprint, args.sensing, args.controllers, "--controllers")
     _check_scenarios(args.scenarios)
     _check_out_dir(args.out)
     summary = run_bench(args.scenarios, args.controllers, args.runs, args.workers, args.out, record=args.rrd,
-                        resume=args.resume, ray=args.ray, sensing=args.sensing)
+                        resume=args.resume, ray=args.ray, sensing=args.sensing, footprint=args.footprint)
     print(markdown_table(summary), end="")
     print(f"wrote {args.out}/results.csv, table.md, success.png")
     return _raised_runs(summary, args.out / "results.csv")
@@ -583,15 +617,17 @@ def _cmd_robustness(args) -> int:
     sweep = parse_sweep(args.sweep)
     fixed = _parse_fixed(args.fixed, sweep)
     _check_sensing(args.sensing, [args.controller])
+    _check_footprint(args.footprint, args.sensing, [args.controller])
     _check_scenarios(args.scenarios)
     _check_out_dir(args.out)
     default = " (the default; choose with --sweep KEY=V1,V2,...)" if args.sweep == list(DEFAULT_SWEEP) else ""
     grid = " x ".join(f"{k} = {', '.join(_num(v) for v in vals)}" for k, vals in sweep)
     print(f"robustness: sweeping {grid}{default}, {args.seeds} seed(s) per point and scenario, controller "
-          f"{args.controller}" + (f", fixed {' '.join(args.fixed)}" if args.fixed else ""), flush=True)
+          f"{args.controller}" + (f", footprint {args.footprint}" if args.footprint != "disc" else "")
+          + (f", fixed {' '.join(args.fixed)}" if args.fixed else ""), flush=True)
     summary = run_robustness(args.scenarios, sweep, args.seeds, args.controller, args.workers, args.out,
                              time_limit_s=args.time_limit, fixed=fixed, resume=args.resume, ray=args.ray,
-                             sensing=args.sensing)
+                             sensing=args.sensing, footprint=args.footprint)
     for row in summary:  # a quantity with no value (NaN: no run ran, or none has a clearance) is n/a
         print("  ".join(f"{k}={'n/a' if math.isnan(v) else format(v, '.3g')}" if isinstance(v, float) else f"{k}={v}"
                         for k, v in row.items()))

@@ -137,16 +137,21 @@ def cmd_closed_loop(args) -> int:
     from sanav_mj.control.footprint import disc_centres
     from sanav_mj.control.spec import ControllerSpec
 
-    if args.footprint == "discs":
-        spec = ControllerSpec("sa-mpc", replace(ControllerSpec().sa_mpc, footprint="discs",
-                                                 footprint_discs=args.discs, footprint_margin=args.margin,
-                                                 footprint_narrow_penalty=args.narrow_penalty,
-                                                 footprint_route=args.route,
-                                                 box_margin=(ControllerSpec().sa_mpc.box_margin if args.box_margin is None
-                                                             else args.box_margin)))
+    if args.footprint == "discs":  # the options given replace MPCConfig's discs-mode defaults
+        given = {k: v for k, v in (("footprint_discs", args.discs), ("footprint_margin", args.margin),
+                                   ("footprint_narrow_penalty", args.narrow_penalty),
+                                   ("footprint_refine", args.refine), ("footprint_refine_width", args.refine_width),
+                                   ("footprint_grow", args.grow), ("footprint_grow_tighten", args.grow_tighten),
+                                   ("footprint_route", args.route), ("box_margin", args.box_margin))
+                 if v is not None}
+        spec = ControllerSpec("sa-mpc", replace(ControllerSpec().sa_mpc, footprint="discs", **given))
+        mpc = spec.sa_mpc
+        args.discs, args.margin, args.refine, args.grow = (mpc.footprint_discs, mpc.footprint_margin,
+                                                           mpc.footprint_refine, mpc.footprint_grow)
     else:
         # Measurement knob: the run path has no margin argument for the circumscribed disc,
         # so the module default is set for this process only (prepare() reads it).
+        args.margin = MARGIN if args.margin is None else args.margin
         episode.DEFAULT_MARGIN_M = args.margin
         spec = ControllerSpec("sa-mpc")
     mm = {}
@@ -182,7 +187,7 @@ def cmd_closed_loop(args) -> int:
     args.out.write_text(json.dumps(rows, indent=1))
     ok = [r for r in rows if r["success"]]
     clr = [r["min_clearance_m"] for r in rows if r["min_clearance_m"] is not None]
-    print(f"footprint {args.footprint}, margin {args.margin} m, cells {args.resolution} m, mismatch {mm}: success {len(ok)}/{len(rows)}, "
+    print(f"footprint {args.footprint}, discs {args.discs}, refine {args.refine}, grow {args.grow}/{args.grow_tighten}, margin {args.margin} m, cells {args.resolution} m, mismatch {mm}: success {len(ok)}/{len(rows)}, "
           f"runs with collision {sum(r['collisions'] > 0 for r in rows)}, {dict(Counter(r['reason'] for r in rows))}, "
           f"mean time (successful) {np.mean([r['sim_time_s'] for r in ok]) if ok else float('nan'):.2f} s, "
           f"mean BARN score {np.mean([r['barn_score'] for r in rows]):.3f}, "
@@ -210,20 +215,28 @@ def main(argv: list[str] | None = None) -> int:
     c = sub.add_parser("closed-loop")
     c.add_argument("scenarios", nargs="+", type=Path)
     c.add_argument("--worlds", type=Path, default=None, help="worlds CSV (t_opt for the BARN score; optional)")
-    c.add_argument("--margin", type=float, default=MARGIN)
+    c.add_argument("--margin", type=float, default=None,
+                   help=f"[m] disc: beyond the circumscribed radius (default {MARGIN}); discs: MPCConfig.footprint_margin")
     c.add_argument("--footprint", choices=("disc", "discs"), default="disc",
                    help="disc: circumscribed radius + MARGIN; discs: the N-disc cover's radius + MARGIN "
                         "and the disc centres in the MPC (MPCConfig.footprint)")
-    c.add_argument("--discs", type=int, default=3, help="discs of the cover (--footprint discs)")
+    c.add_argument("--discs", type=int, default=None, help="discs of the cover (--footprint discs; default MPCConfig's)")
     c.add_argument("--seeds", type=int, nargs="+", default=[0])
-    c.add_argument("--route", choices=("pose", "corridor"), default="pose",
+    c.add_argument("--route", choices=("pose", "corridor"), default=None,
                    help="discs mode: corridor and reference from the pose search or the corridor planner "
-                        "(MPCConfig.footprint_route)")
+                        "(MPCConfig.footprint_route; default: the config's)")
     c.add_argument("--box-margin", type=float, default=None,
                    help="[m] discs mode: MPCConfig.box_margin (default: the config's)")
-    c.add_argument("--narrow-penalty", type=float, default=2.0,
+    c.add_argument("--narrow-penalty", type=float, default=None,
                    help="[m] discs mode: corridor weight added per edge through a place too narrow to turn")
     c.add_argument("--resolution", type=float, default=0.05)
+    c.add_argument("--refine", type=int, default=None,
+                   help="discs mode: refine the cells by this factor where the free space is narrow")
+    c.add_argument("--refine-width", type=float, default=None, help="[m] discs mode, --refine > 1: narrow below this")
+    c.add_argument("--grow", type=float, default=None,
+                   help="[m] discs mode: grow the corridor chain's boxes to maximal free rectangles, at most this per side")
+    c.add_argument("--grow-tighten", type=float, default=None,
+                   help="[m] discs mode, --grow > 0: tighten the added room by this much more than the box margin")
     c.add_argument("--mismatch", nargs="*", default=[])
     c.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)

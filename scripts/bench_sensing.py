@@ -10,15 +10,22 @@ free in the known-map grid (0 = the lidar map's safe cells are inside the known 
 
     PYTHONPATH=$PWD python scripts/bench_sensing.py [SCENARIO ...] [--seed N]
 
-``--loop``: the closed loop instead (``run SCENARIO --sensing lidar``, seed ``--seed``), per
-step: pipeline (scan + map update + replan check and plan + solve), map update per scan,
-replan time per plan after the first, and the pipeline minus the solve per step (the part
-outside the solver), as mean / p99 [ms]; the first plan's time and the controller's
-construction time (``prepare_ms``: the SA-MPC built before the loop; 0 for a tree
-without it) as means [ms]. With ``--against TREE`` (a source tree of
-another version of the package, e.g. ``git worktree add /tmp/base <commit>``), both versions
-run alternately, ``--repeat`` times each, in fresh processes under the same machine load,
-and the run JSONs (wall-clock fields ``*_ms`` aside) are compared:
+``--loop``: the closed loop instead (``run SCENARIO --sensing lidar``, seed ``--seed``), as
+mean / p99 [ms]: the pipeline per step (scan + map update + replan check and plan + SA-MPC
+step), the map update per scan, the SA-MPC step (the run JSON's ``solve_ms``: preparation,
+solve, acceptance) and the pipeline without it per step, the control thread's planning time
+per step that planned, handed a background plan over or requested one, and the computing
+time of each plan after the first wherever it ran; then plans per run, plans adopted from
+the background worker, the first plan's time and the controller's construction time
+(``prepare_ms``) as means. ``--components`` adds the per-step split (map update, planning,
+SA-MPC step, rest) and the fallback steps per run; ``--realtime`` paces each run at the
+control period, as on a robot (a background plan then has a real period's idle time);
+``--new-config KEY=VALUE`` / ``--old-config`` set :class:`SensingConfig` fields of each
+version's controller (e.g. ``background_replan=true``). With ``--against TREE`` (a source
+tree of another version of the package, e.g. ``git archive <commit> | tar -x -C /tmp/base``),
+both versions run alternately, ``--repeat`` times each, in fresh processes under the same
+machine load, and the run JSONs (wall-clock fields ``*_ms`` aside) are compared (exit 1 when
+runs of one version differ from each other):
 
     PYTHONPATH=$PWD python scripts/bench_sensing.py --loop u_shape v_shape complex --against /tmp/base --repeat 3
 """
@@ -90,15 +97,46 @@ def run(name: str, seed: int) -> str:
 
 
 _WORKER = """
-import json, sys
-from sanav_mj.eval.episode import run_scenario
-out = run_scenario(sys.argv[1], seed=int(sys.argv[2]), sensing="lidar")
+import dataclasses, json, sys
+from sanav_mj.eval.episode import lidar_controller, run_scenario
+from sanav_mj.scene import load_scenario
+sc = load_scenario(sys.argv[1])
+ctrl = lidar_controller(sc)
+over = json.loads(sys.argv[3])
+if over:
+    ctrl.config = dataclasses.replace(ctrl.config, **over)
+hook = None
+if sys.argv[4] == "1":  # paced: each control step starts dt after the last, as on a robot
+    import time
+    t_next = [None]
+
+    def hook(step, trace):
+        if t_next[0] is None:
+            t_next[0] = time.perf_counter()
+        t_next[0] += ctrl.dt
+        time.sleep(max(0.0, t_next[0] - time.perf_counter()))
+out = run_scenario(sc, seed=int(sys.argv[2]), sensing="lidar", controller_obj=ctrl, on_step=hook)
 rec = out.sensed.records
-plans = [r.replan_ms for r in rec if r.replan is not None]
 tr = out.episode.trace
-print(json.dumps({"pipeline": list(tr.pipeline_ms), "map": out.sensed.map_update_ms,
+first = next((k for k, r in enumerate(rec) if r.replan is not None), len(rec))
+later = [r for r in rec[first + 1:] if r.replan is not None]
+print(json.dumps({"pipeline": list(tr.pipeline_ms), "map": out.sensed.map_update_ms, "solve": list(tr.solve_ms),
                   "nosolve": [p - s for p, s in zip(tr.pipeline_ms, tr.solve_ms)],
-                  "replan": plans[1:], "first": plans[:1], "prepare": [getattr(out.sensed, "prepare_ms", 0.0)],
+                  # the control thread's planning time per step that planned, handed a background
+                  # plan over or started one (after the first plan)
+                  "replan": [r.replan_ms for r in rec[first + 1:] if r.replan_ms > 0],
+                  # computing time of each plan after the first, wherever it ran
+                  "plan": [getattr(r, "plan_ms", 0.0) or r.replan_ms for r in later],
+                  "plans": [len(later)],
+                  "deferred": [sum(bool(getattr(r, "deferred", False)) for r in later)],
+                  "first": [rec[first].replan_ms] if first < len(rec) else [],
+                  "prepare": [getattr(out.sensed, "prepare_ms", 0.0)],
+                  # per step: map update (0 without a scan), planning on the control thread,
+                  # and the rest outside them and the SA-MPC step (lidar cast, replan check)
+                  "map_step": [r.map_ms or 0.0 for r in rec], "replan_step": [r.replan_ms for r in rec],
+                  "rest_step": [p - (r.map_ms or 0.0) - r.replan_ms - s
+                                for p, s, r in zip(tr.pipeline_ms, tr.solve_ms, rec)],
+                  "limit": [sum(s.startswith("fallback") for s in tr.status)],
                   "doc": out.document}))
 """
 
@@ -112,31 +150,43 @@ def _strip_ms(x):
     return x
 
 
-def loop(names: list[str], seed: int, against: str | None, repeat: int) -> int:
-    """The closed-loop per-step times of this tree (and of ``against``), printed as a table."""
-    trees = {"new": str(Path(__file__).resolve().parents[1])}
+_KEYS = ("pipeline", "map", "solve", "nosolve", "replan", "plan", "plans", "deferred", "first", "prepare",
+         "map_step", "replan_step", "rest_step", "limit")
+
+
+def loop(names: list[str], seed: int, against: str | None, repeat: int, new_config: dict | None = None,
+         old_config: dict | None = None, realtime: bool = False, components: bool = False) -> int:
+    """The closed-loop per-step times of this tree (and of ``against``), printed as a table;
+    ``new_config`` / ``old_config``: :class:`SensingConfig` fields replaced in each version's
+    controller (e.g. ``{"background_replan": False}``); ``realtime``: pace the loop at the
+    control period (each step starts ``dt`` after the last, as on a robot), so a background
+    plan has the idle time of a real control period; ``components``: also the per-step split
+    (map update, control-thread planning, SA-MPC step, rest) and the fallbacks per run."""
+    trees = {"new": (str(Path(__file__).resolve().parents[1]), new_config or {})}
     if against:
-        trees = {"old": str(Path(against).resolve()), **trees}
+        trees = {"old": (str(Path(against).resolve()), old_config or {}), **trees}
     print(f"load average {os.getloadavg()[0]:.2f} (start); {repeat} run(s) per version, alternating; "
-          "ms as mean / p99 over all steps (scans, replans) of the runs")
-    print(f"{'scenario':10s} {'ver':3s}  {'pipeline':^15s}  {'map update':^15s}  {'replan':^15s}  "
-          f"{'w/o solve':^15s}  first  prep   plans  load")
+          f"ms as mean / p99 over all steps, scans or plans of the runs{'; paced at real time' if realtime else ''}")
+    for ver, (tree, over) in trees.items():
+        print(f"  {ver}: {tree} {over or ''}")
+    print(f"{'scenario':10s} {'ver':3s}  {'pipeline':^15s}  {'map update':^15s}  {'solve':^15s}  {'w/o solve':^15s}  "
+          f"{'replan (ctl)':^15s}  {'plan':^15s}  plans  defer  first  prep  load")
     sys.stdout.flush()
     status = 0
     for name in names:
-        keys = ("pipeline", "map", "replan", "nosolve", "first", "prepare", "load")
-        acc: dict[str, dict[str, list]] = {v: {k: [] for k in keys} for v in trees}
+        acc: dict[str, dict[str, list]] = {v: {k: [] for k in (*_KEYS, "load")} for v in trees}
         docs: dict[str, list] = {v: [] for v in trees}
         for _ in range(repeat):
-            for ver, tree in trees.items():
+            for ver, (tree, over) in trees.items():
                 env = {**os.environ, "PYTHONPATH": tree}
-                proc = subprocess.run([sys.executable, "-c", _WORKER, name, str(seed)], env=env, cwd=tree,
-                                      capture_output=True, text=True, check=False)
+                proc = subprocess.run([sys.executable, "-c", _WORKER, name, str(seed), json.dumps(over),
+                                       "1" if realtime else "0"], env=env,
+                                      cwd=tree, capture_output=True, text=True, check=False)
                 if proc.returncode != 0:
                     print(f"bench_sensing: {ver} run of {name} failed: {proc.stderr.strip()[-500:]}", file=sys.stderr)
                     return 3
                 r = json.loads(proc.stdout.strip().splitlines()[-1])
-                for k in ("pipeline", "map", "replan", "nosolve", "first", "prepare"):
+                for k in _KEYS:
                     acc[ver][k].extend(r[k])
                 acc[ver]["load"].append(os.getloadavg()[0])
                 docs[ver].append(_strip_ms(r["doc"]))
@@ -146,13 +196,36 @@ def loop(names: list[str], seed: int, against: str | None, repeat: int) -> int:
             def f(v):
                 return f"{np.mean(v):6.2f} / {np.percentile(v, 99):6.2f}" if len(v) else f"{'-':^15s}"
 
-            print(f"{name:10s} {ver:3s}  {f(a['pipeline'])}  {f(a['map'])}  {f(a['replan'])}  {f(a['nosolve'])}  "
-                  f"{np.mean(a['first']):5.1f}  {np.mean(a['prepare']):5.1f}  "
-                  f"{len(a['replan']) // repeat + 1:5d}  {np.mean(a['load']):4.2f}")
-        same = all(d == docs["new"][0] for v in trees for d in docs[v])
-        print(f"{name:10s} run JSON (without *_ms) {'identical' if same else 'DIFFERENT'} across versions and runs")
-        status = status or (0 if same else 1)
+            print(f"{name:10s} {ver:3s}  {f(a['pipeline'])}  {f(a['map'])}  {f(a['solve'])}  {f(a['nosolve'])}  "
+                  f"{f(a['replan'])}  {f(a['plan'])}  {np.mean(a['plans']):5.1f}  {np.mean(a['deferred']):5.1f}  "
+                  f"{np.mean(a['first']):5.1f}  {np.mean(a['prepare']):4.1f}  {np.mean(a['load']):4.2f}")
+        if components:
+            for ver in trees:
+                a = acc[ver]
+
+                def g(v):
+                    return f"{np.mean(v):5.2f} / {np.percentile(v, 99):6.2f}"
+
+                print(f"{'':10s} {ver:3s}  per step:  map update {g(a['map_step'])}  replan {g(a['replan_step'])}  "
+                      f"SA-MPC step {g(a['solve'])}  rest {g(a['rest_step'])}  fallbacks/run "
+                      f"{np.mean(a['limit']):.1f}")
+        repeatable = all(d == docs[v][0] for v in trees for d in docs[v])
+        same = repeatable and all(docs[v][0] == docs["new"][0] for v in trees)
+        print(f"{name:10s} run JSON (without *_ms): {'repeatable' if repeatable else 'NOT REPEATABLE'} within each "
+              f"version; {'identical' if same else 'different'} across versions")
+        status = status or (0 if repeatable else 1)
     return status
+
+
+def _overrides(items: list[str] | None) -> dict:
+    """``KEY=VALUE`` strings -> {key: bool | int | float} for :class:`SensingConfig`."""
+    out = {}
+    for item in items or []:
+        key, _, value = item.partition("=")
+        out[key] = {"true": True, "false": False}.get(value.lower(), None)
+        if out[key] is None:
+            out[key] = float(value) if "." in value else int(value)
+    return out
 
 
 def main(argv=None) -> int:
@@ -162,10 +235,18 @@ def main(argv=None) -> int:
     p.add_argument("--loop", action="store_true", help="time the closed loop (run --sensing lidar) per step")
     p.add_argument("--against", metavar="TREE", help="with --loop: also run this source tree, alternately")
     p.add_argument("--repeat", type=int, default=1, help="with --loop: runs per version (default 1)")
+    p.add_argument("--new-config", nargs="*", metavar="KEY=VALUE",
+                   help="with --loop: SensingConfig fields for this tree's runs, e.g. background_replan=false")
+    p.add_argument("--old-config", nargs="*", metavar="KEY=VALUE", help="with --loop: the same for --against")
+    p.add_argument("--components", action="store_true",
+                   help="with --loop: also print the per-step split (map update, replan, SA-MPC step, rest)")
+    p.add_argument("--realtime", action="store_true",
+                   help="with --loop: pace each run at the control period (10 Hz), as on a robot")
     a = p.parse_args(argv)
     names = a.scenarios or list(builtin_scenarios())
     if a.loop:
-        return loop(names, a.seed, a.against, max(1, a.repeat))
+        return loop(names, a.seed, a.against, max(1, a.repeat), _overrides(a.new_config), _overrides(a.old_config),
+                    a.realtime, a.components)
     print(f"load average {os.getloadavg()[0]:.2f}; ms as mean / median / p99")
     print(f"{'scenario':12s} {'scans':>4s}  {'cast':>5s}  {'map update':^21s}  {'safe areas':^21s}  "
           f"{'route areas':^21s}  {'total':^21s}  {'rects':>5s}  delta_m")

@@ -200,7 +200,7 @@ def test_run_result_is_printed_and_kept_when_an_output_fails(tmp_path, capsys):
 def test_an_os_error_mid_way_is_one_line(tmp_path, monkeypatch, capsys):
     from sanav_mj.eval import demo
 
-    def full_disk(out, record, sensing="map"):  # raised by run_demo itself (not an output it notes)
+    def full_disk(out, record, sensing="map", footprint="disc"):  # raised by run_demo itself (not an output it notes)
         raise OSError(28, "No space left on device", "out/demo/u_shape.json")
 
     monkeypatch.setattr(demo, "run_demo", full_disk)
@@ -464,7 +464,7 @@ def test_demo_without_recordings_does_not_say_it_wrote_them(tmp_path, capsys, mo
 
     seen = {}
 
-    def fake(out, record, sensing="map"):
+    def fake(out, record, sensing="map", footprint="disc"):
         seen["record"] = record
         return demo.DemoResult(rows=[{k: v for k, v in _doc().items()}])
 
@@ -480,7 +480,7 @@ def test_demo_without_recordings_does_not_say_it_wrote_them(tmp_path, capsys, mo
 def test_demo_output_that_fails_is_one_line_after_the_table(tmp_path, capsys, monkeypatch):
     from sanav_mj.eval import demo
 
-    def fake(out, record, sensing="map"):
+    def fake(out, record, sensing="map", footprint="disc"):
         return demo.DemoResult(rows=[_doc()], written=[out / "a.json"],
                                failed=[OSError(28, "No space left on device", str(out / "u_shape.rrd"))])
 
@@ -550,3 +550,89 @@ def test_run_is_a_thin_layer_over_the_python_api(tmp_path, capsys, monkeypatch):
     assert json.loads(js.read_text()) == results[0].to_dict()  # wall-clock fields included: the same object
     assert results[0].to_dict()["mismatch"] == {"delay": 1} and results[0].controller == "dwa"
     assert out.startswith("single_rect / dwa seed 2:")
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["bench", "single_rect", "--footprint", "discs"], "--footprint discs: supported for the sa-mpc controller only"),
+    (["robustness", "single_rect", "--footprint", "discs", "--controller", "dwa"], "--controller dwa"),
+    (["run", "single_rect", "--footprint", "discs", "--controller", "mpc"], "--controller mpc"),
+    (["run", "single_rect", "--footprint", "discs", "--sensing", "lidar"], "--sensing map only"),
+    (["demo", "--footprint", "discs", "--sensing", "lidar"], "--sensing map only"),
+    (["run", "single_rect", "--footprint", "rectangle"], "--footprint"),
+])
+def test_footprint_option_bad_input_exit_2_one_line(argv, fragment, capsys, tmp_path):
+    code, out, err = _run(argv + (["--out", str(tmp_path / "o")] if argv[0] in ("bench", "robustness", "demo")
+                                  else []), capsys)
+    assert code == 2 and err.count("\n") == 1 and fragment in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_bench_and_robustness_pass_the_footprint_to_every_run(tmp_path, capsys, fake_campaign_runs):
+    from sanav_mj.eval.campaign import Job, job_key
+
+    seen = fake_campaign_runs(_fake_doc)
+    code, _, err = _run(["bench", "single_rect", "--controllers", "sa-mpc", "--runs", "2", "--footprint", "discs",
+                         "--out", str(tmp_path / "b")], capsys)
+    assert code == 0, err
+    code, out, err = _run(["robustness", "single_rect", "--seeds", "1", "--sweep", "delay=0,1", "--footprint",
+                           "discs", "--out", str(tmp_path / "r")], capsys)
+    assert code == 0, err
+    assert "footprint discs" in out
+    assert len(seen) == 4 and {j.footprint for j in seen} == {"discs"}
+    for folder in ("b", "r"):
+        assert json.loads((tmp_path / folder / "meta.json").read_text())["footprint"] == "discs"
+    # default journal keys are unchanged; discs keys say so
+    assert job_key(Job("u_shape", "sa-mpc", 0)) == '["u_shape","sa-mpc",0,[],60.0]'
+    assert job_key(Job("u_shape", "sa-mpc", 0, footprint="discs")) == '["u_shape","sa-mpc",0,[],60.0,"footprint=discs"]'
+    # and without --footprint the jobs are the default ones
+    seen.clear()
+    code, _, err = _run(["bench", "single_rect", "--controllers", "sa-mpc", "--runs", "1", "--out",
+                         str(tmp_path / "d")], capsys)
+    assert code == 0 and {j.footprint for j in seen} == {"disc"}
+    assert "footprint" not in json.loads((tmp_path / "d" / "meta.json").read_text())
+
+
+def test_run_footprint_reaches_the_controller_spec(capsys, monkeypatch):
+    import sanav_mj.api as api
+
+    specs = []
+
+    def fake(scenario, controller="sa-mpc", **kw):
+        specs.append(controller)
+        raise KeyboardInterrupt  # stop before any simulation
+
+    monkeypatch.setattr(api, "run_scenario", fake)
+    for flag in ([], ["--footprint", "disc"], ["--footprint", "discs"]):
+        assert _run(["run", "single_rect"] + flag, capsys)[0] == 130
+    from sanav_mj.control.spec import ControllerSpec
+
+    assert specs[0] == ControllerSpec("sa-mpc") and specs[1] == ControllerSpec("sa-mpc")
+    assert specs[2].sa_mpc.footprint == "discs" and specs[2].name == "sa-mpc"
+
+
+def test_demo_passes_the_footprint(tmp_path, capsys, monkeypatch):
+    from sanav_mj.eval import demo
+
+    seen = []
+
+    def fake(out, record, sensing="map", footprint="disc"):
+        seen.append(footprint)
+        return demo.DemoResult(rows=[{k: v for k, v in _doc().items()}])
+
+    monkeypatch.setattr(demo, "run_demo", fake)
+    for flag in ([], ["--footprint", "discs"]):
+        assert _run(["demo", "--no-rrd", "--out", str(tmp_path)] + flag, capsys)[0] == 0
+    assert seen == ["disc", "discs"]
+
+
+@pytest.mark.parametrize("argv,name", [
+    (["run", "single_rect", "--seed", "x"], "--seed"),
+    (["run", "single_rect", "--resolution", "5"], "--resolution"),
+    (["bench", "single_rect", "--runs", "0"], "--runs"),
+])
+def test_argument_error_names_the_argument_once(argv, name, capsys):
+    # argparse's "argument NAME: " prefix and our own "NAME: " gave "--seed: --seed: ..."
+    code, _, err = _run(argv, capsys)
+    assert code == 2
+    assert err.count(name) == 1, err
+    assert err.startswith(f"sanav-mj: error: {argv[0]}: {name}: expected"), err

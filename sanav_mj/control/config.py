@@ -222,7 +222,12 @@ class MPCConfig(TrackingConfig):
             taken only where the circle the disc centres sweep fits in a stage box (else the
             MPC turns, under the disc rows). See :mod:`sanav_mj.control.footprint`.
         footprint_discs: number of discs of the ``"discs"`` cover (>= 2).
-        footprint_margin: [m] inflation margin beyond the disc radius in ``"discs"`` mode.
+        footprint_margin: [m] inflation margin beyond the disc radius in ``"discs"`` mode. Its
+            job is the true disc centres' excursion outside the safe areas under model
+            mismatch, measured at the robustness envelope's corner (docs/results.md, "Tight
+            spaces"): 0 on the paper scenarios, up to 7 cm in the BARN-like worlds; the cover's
+            discs have no slack at the rectangle's corners, so an excursion beyond the margin
+            can touch (0.02 m: 1 collision in 100 corner runs; 0.05 m: none). Default 0.05.
         footprint_narrow_penalty: [m] ``"discs"`` mode: added to the corridor search's weight
             of every edge through a place where the circumscribed-disc map has no room
             (:func:`sanav_mj.eval.episode.planning_areas`), so the corridor keeps to passages
@@ -233,6 +238,21 @@ class MPCConfig(TrackingConfig):
             (:mod:`sanav_mj.planning.pose_search`); the reference's yaw is the found
             path's, the corridor the areas it passes. ``"corridor"``: the paper's corridor
             and B-spline reference (heading = path tangent).
+        footprint_refine: ``"discs"`` mode: the map's cells are refined by this integer
+            factor where the free space is narrow (:class:`sanav_mj.mapping.MapConfig`
+            ``refine``, :func:`sanav_mj.mapping.refine.refine_narrow`); 1: one grid.
+            Default 2 (0.05 m cells become 0.025 m where narrow).
+        footprint_refine_width: [m] ``"discs"`` mode with ``footprint_refine > 1``: a fine
+            cell is used where its free run along x or y is at most this long.
+        footprint_grow: [m] ``"discs"`` mode: > 0 grows every box of the corridor chain to a
+            maximal free rectangle of the map's grid, each side by at most this much
+            (:meth:`sanav_mj.control.stages.CorridorChain.build`); 0: the safe areas as
+            they are (default: growth lets the MPC cut closer to the obstacles at speed, and
+            at the robustness envelope's corner 2 of the 100 BARN-like runs collided with
+            1.0 m, docs/results.md "Tight spaces").
+        footprint_grow_tighten: [m] with ``footprint_grow > 0``: the room growth adds to a
+            stage box is tightened by this much more than ``box_margin`` (the plain box's
+            room is kept), for the tracking error under model mismatch.
     """
 
     q_sa: tuple[float, ...] = (5.0, 5.0)
@@ -244,6 +264,10 @@ class MPCConfig(TrackingConfig):
     footprint_margin: float = 0.05
     footprint_narrow_penalty: float = 2.0
     footprint_route: str = "pose"
+    footprint_refine: int = 2
+    footprint_refine_width: float = 0.25
+    footprint_grow: float = 0.0
+    footprint_grow_tighten: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -270,6 +294,18 @@ class MPCConfig(TrackingConfig):
             raise ValueError(f"MPCConfig.footprint_narrow_penalty must be a finite number >= 0 m, got {fp!r}")
         if self.footprint_route not in FOOTPRINT_ROUTES:
             raise ValueError(f"MPCConfig.footprint_route must be one of {FOOTPRINT_ROUTES}, got {self.footprint_route!r}")
+        fr = self.footprint_refine
+        if isinstance(fr, bool) or not (isinstance(fr, int) and 1 <= fr <= 16):
+            raise ValueError(f"MPCConfig.footprint_refine must be an integer in [1, 16], got {fr!r}")
+        fw = self.footprint_refine_width
+        if isinstance(fw, bool) or not (isinstance(fw, (int, float)) and math.isfinite(fw) and fw >= 0):
+            raise ValueError(f"MPCConfig.footprint_refine_width must be a finite number >= 0 m, got {fw!r}")
+        ft = self.footprint_grow_tighten
+        if isinstance(ft, bool) or not (isinstance(ft, (int, float)) and math.isfinite(ft) and 0 <= ft < 1):
+            raise ValueError(f"MPCConfig.footprint_grow_tighten must be a number in [0, 1) m, got {ft!r}")
+        fg = self.footprint_grow
+        if isinstance(fg, bool) or not (isinstance(fg, (int, float)) and math.isfinite(fg) and 0 <= fg <= 10):
+            raise ValueError(f"MPCConfig.footprint_grow must be a number in [0, 10] m, got {fg!r}")
 
     def tracking(self) -> TrackingConfig:
         """The core's part of this configuration (the same values)."""

@@ -116,25 +116,44 @@ class CorridorChain:
         stay: (L, 4) [m] stage box when staying on member j: ``shrink(C_j)``.
         advance: (L, 4) [m] stage box when advancing onto member j: ``shrink(C_{j-1} ∩ C_j)``
             (row 0 unused).
+        area_rects: (R, 4) [m] the rectangle J_SA uses for each safe area: ``areas.rects``,
+            or, when the chain was grown, the corridor's areas grown as their members.
     """
 
     boxes: np.ndarray
     rect_pair: np.ndarray
     stay: np.ndarray
     advance: np.ndarray
+    area_rects: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.boxes.shape[0])
 
     @staticmethod
     def build(areas: SafeAreas, corridor: np.ndarray, margin: float = 0.0) -> CorridorChain:
-        """Chain of the corridor ``(C,)`` int indices into ``areas.rects``; boxes shrunk by ``margin`` [m]."""
+        """Chain of the corridor ``(C,)`` int indices into ``areas.rects``; boxes shrunk by ``margin`` [m].
+
+        When ``areas.free`` is set (:class:`~sanav_mj.mapping.grow.FreeCells` of the grid the
+        areas were cut from), every member is grown to a maximal free rectangle of that grid
+        (:func:`~sanav_mj.mapping.grow.grow_rect`, at most ``areas.free.limit`` per side). A
+        grown member holds only free cells of the grid (as safe as a safe area) and contains
+        the member it grew from, so consecutive members still overlap with positive area, by
+        more than before where the partition is a staircase of thin areas. Its stage boxes are
+        the grown box (or intersection) shrunk by ``margin + areas.free.tighten``, per side
+        never tighter than the plain member's (shrunk by ``margin``): the room growth adds is
+        tightened by the tracking error ``tighten``, the plain chain's room is kept.
+        """
         rects = np.asarray(areas.rects, dtype=float)
         corridor = np.asarray(corridor, dtype=int).ravel()
         if corridor.size == 0:
             raise ValueError("plan.corridor must hold at least one safe-area index, got an empty array")
         if corridor.min() < 0 or corridor.max() >= len(rects):
             raise ValueError(f"plan.corridor indices must be in [0, {len(rects)}), got {corridor.tolist()}")
+        free = getattr(areas, "free", None)
+        if free is not None:
+            from sanav_mj.mapping.grow import grow_rect
+
+            area_rects = rects.copy()
         boxes, pairs = [rects[corridor[0]]], [(corridor[0], corridor[0])]
         for i, j in zip(corridor[:-1], corridor[1:]):
             boxes.append(bridge_box(rects[i], rects[j]))
@@ -146,7 +165,24 @@ class CorridorChain:
         adv = np.empty_like(boxes)
         adv[0] = stay[0]
         adv[1:] = shrink_box(box_intersection(boxes[:-1], boxes[1:]), margin)
-        return CorridorChain(boxes, np.array(pairs, dtype=int), stay, adv)
+        if free is None:
+            return CorridorChain(boxes, np.array(pairs, dtype=int), stay, adv)
+        grown = np.array([grow_rect(free, b) for b in boxes])
+        # the grown boxes shrunk by margin + tighten, but per side never tighter than the plain ones
+        # (uncapped: where that inverts a box, the plain side is the looser one)
+        inset = np.array([1.0, 1.0, -1.0, -1.0])
+        g_stay = _looser(stay, grown + (margin + free.tighten) * inset)
+        g_adv = np.empty_like(grown)
+        g_adv[0] = g_stay[0]
+        g_adv[1:] = _looser(adv[1:], box_intersection(grown[:-1], grown[1:]) + (margin + free.tighten) * inset)
+        for k in range(len(corridor)):  # J_SA's area rectangles: as their members
+            area_rects[corridor[k]] = _looser(rects[corridor[k]], grown[2 * k] + free.tighten * inset)
+        return CorridorChain(grown, np.array(pairs, dtype=int), g_stay, g_adv, area_rects)
+
+
+def _looser(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per side the looser of boxes ``a`` and ``b`` (..., 4): the smaller min, the larger max."""
+    return np.concatenate((np.minimum(a[..., :2], b[..., :2]), np.maximum(a[..., 2:], b[..., 2:])), axis=-1)
 
 
 def _outside_sq(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
@@ -359,7 +395,8 @@ def safe_area_params(chain: CorridorChain, rects: np.ndarray, members: tuple[int
     with priorities ``q_sa`` (slots,); unused slots inactive. When there are more areas than
     slots the first ``slots`` are used, or, with ``all_or_none``, none (every slot inactive,
     J_SA a constant): a partial set penalises a point for being in an area it leaves out,
-    which held the front disc of a footprint back from areas its hard rows allow."""
+    which held the front disc of a footprint back from areas its hard rows allow. A grown
+    chain (``chain.area_rects``) gives the grown areas instead of ``rects``."""
     ids: list[int] = []
     for pair in chain.rect_pair[members[0] : members[1] + 1]:
         for r in pair:
@@ -369,7 +406,8 @@ def safe_area_params(chain: CorridorChain, rects: np.ndarray, members: tuple[int
         ids = []
     ids = ids[:slots]
     theta = np.zeros((slots, 6))
-    theta[: len(ids), :4] = shrink_box(rects[ids], margin)
+    src = rects if chain.area_rects is None else chain.area_rects  # a grown chain: its grown areas
+    theta[: len(ids), :4] = shrink_box(src[ids], margin)
     theta[: len(ids), 4] = q_sa[: len(ids)]
     theta[: len(ids), 5] = 1.0
     theta[len(ids) :, 2:4] = 1.0  # inactive slots: any finite rectangle

@@ -450,6 +450,7 @@ def run_bench(
     resume: bool = False,
     ray: str | bool | Any = None,
     sensing: str = "map",
+    footprint: str = "disc",
 ) -> list[dict[str, Any]]:
     """Run the comparison and write ``results.csv``, ``table.md`` and ``success.png`` in ``out``.
 
@@ -470,6 +471,8 @@ def run_bench(
             open :class:`~sanav_mj.eval.ray_runner.RaySession`; None: the pool of ``workers``.
             The rows, outputs and journal are the same either way.
         sensing: ``"map"`` or ``"lidar"`` for every run (lidar: SA-MPC only).
+        footprint: SA-MPC's ``"disc"`` or ``"discs"`` for every run (``meta.json`` names it
+            when not ``"disc"``; :func:`sanav_mj.eval.episode.footprint_spec`).
 
     Returns:
         The per (scenario, controller) summary rows (also written to ``table.md``); their
@@ -505,6 +508,7 @@ def run_bench(
         Job(
             scenario=s, controller=c, seed=k, time_limit_s=time_limit_s,
             rrd=str(out / "rrd" / f"{Path(s).stem}_{c}_{k}.rrd") if record else None, sensing=sensing,
+            footprint=footprint,
         )
         for s in names for c in controllers for k in range(runs)
     ), len(names) * len(controllers) * runs,
@@ -513,6 +517,8 @@ def run_bench(
         meta = {"command": "bench", **run_metadata(names, controllers, runs, workers, time_limit_s)}
         if sensing != "map":
             meta["sensing"] = sensing
+        if footprint != "disc":
+            meta["footprint"] = footprint
         meta["executor"] = describe(ray)
         begin_campaign(out, meta, resume)
         t0 = time.perf_counter()

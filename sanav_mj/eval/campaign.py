@@ -72,6 +72,7 @@ class Job:
         rrd: optional recording path.
         tags: extra columns copied into the result row (e.g. the swept values).
         sensing: ``"map"`` or ``"lidar"`` (see :func:`sanav_mj.eval.episode.run_scenario`).
+        footprint: SA-MPC's ``"disc"`` or ``"discs"`` (:func:`sanav_mj.eval.episode.footprint_spec`).
     """
 
     scenario: str
@@ -82,6 +83,7 @@ class Job:
     rrd: str | None = None
     tags: tuple[tuple[str, Any], ...] = field(default_factory=tuple)
     sensing: str = "map"
+    footprint: str = "disc"
 
 
 class JournalError(ValueError):
@@ -111,11 +113,13 @@ class CampaignInterrupted(KeyboardInterrupt):
 
 def job_key(job: Job) -> str:
     """The identity of ``job`` in a journal: scenario, controller, seed, mismatch items and
-    time limit [s] as compact JSON, and the sensing mode when it is not ``"map"`` (so journals
-    of map-mode campaigns keep their keys); the recording path and the tags are not part of it."""
+    time limit [s] as compact JSON, the sensing mode when it is not ``"map"`` and the footprint
+    when it is not ``"disc"`` (so journals of default campaigns keep their keys); the recording path and the tags are not part of it."""
     key: list[Any] = [job.scenario, job.controller, int(job.seed), list(job.mismatch), float(job.time_limit_s)]
     if job.sensing != "map":
         key.append(job.sensing)
+    if job.footprint != "disc":
+        key.append(f"footprint={job.footprint}")
     return json.dumps(key, separators=(",", ":"))
 
 
@@ -140,19 +144,22 @@ def error_row(job: Job, exc: BaseException) -> dict[str, Any]:
     return row
 
 
-_PREPARED: dict[str, Any] = {}
+_PREPARED: dict[tuple[str, str], Any] = {}
 
 
 def run_job(job: Job) -> dict[str, Any]:
     """Run one job in this process; returns the run JSON without its trace, plus the tags."""
-    from sanav_mj.eval.episode import prepare, run_scenario
+    from sanav_mj.eval.episode import footprint_spec, prepare, run_scenario
     from sanav_mj.sim.mismatch import parse_mismatch
 
-    if job.scenario not in _PREPARED:
-        _PREPARED[job.scenario] = prepare(job.scenario)
+    spec = footprint_spec(job.controller, job.footprint)
+    key = (job.scenario, job.footprint)  # the map depends on the footprint mode
+    if key not in _PREPARED:
+        _PREPARED[key] = prepare(job.scenario, controller=spec)
     out = run_scenario(
-        _PREPARED[job.scenario],
+        _PREPARED[key],
         controller=job.controller,
+        controller_spec=spec,
         seed=job.seed,
         mismatch=parse_mismatch(list(job.mismatch)),
         time_limit_s=job.time_limit_s,

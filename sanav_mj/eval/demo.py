@@ -26,7 +26,8 @@ class DemoResult:
     failed: list[OSError] = field(default_factory=list)
 
 
-def run_demo(out: Path, record: bool = True, seed: int = 0, sensing: str = "map") -> DemoResult:
+def run_demo(out: Path, record: bool = True, seed: int = 0, sensing: str = "map",
+             footprint: str = "disc") -> DemoResult:
     """Run SA-MPC once on each built-in scenario.
 
     Writes, per scenario NAME, into ``out``: ``NAME.json`` (the run JSON), ``NAME.png`` (run
@@ -40,8 +41,9 @@ def run_demo(out: Path, record: bool = True, seed: int = 0, sensing: str = "map"
         record: also write the rerun recordings.
         seed: the seed of every run.
         sensing: ``"map"`` or ``"lidar"`` (see :func:`sanav_mj.eval.episode.run_scenario`).
+        footprint: SA-MPC's ``"disc"`` or ``"discs"`` (:func:`sanav_mj.eval.episode.footprint_spec`).
     """
-    from sanav_mj.eval.episode import run_scenario
+    from sanav_mj.eval.episode import footprint_spec, run_scenario
     from sanav_mj.eval.plots import plot_areas, plot_run
     from sanav_mj.outputs import write_text
     from sanav_mj.record import record_episode
@@ -59,7 +61,8 @@ def run_demo(out: Path, record: bool = True, seed: int = 0, sensing: str = "map"
 
     out.mkdir(parents=True, exist_ok=True)
     for name in tqdm(builtin_scenarios(), desc="demo", unit="scenario", dynamic_ncols=True):
-        outcome = run_scenario(name, seed=seed, sensing=sensing, record_sensing=record)
+        outcome = run_scenario(name, seed=seed, sensing=sensing, record_sensing=record,
+                               controller_spec=footprint_spec("sa-mpc", footprint))
         doc = outcome.document
         js, png, areas, rrd = (out / f"{name}.json", out / f"{name}.png", out / f"{name}_areas.png",
                                out / f"{name}.rrd")

@@ -106,6 +106,19 @@ def planner_config(robot, spec: ControllerSpec = ControllerSpec()) -> Any:
     )
 
 
+def footprint_spec(controller: str = "sa-mpc", footprint: str = "disc") -> ControllerSpec:
+    """The default :class:`ControllerSpec` of ``controller`` with SA-MPC's
+    :attr:`~sanav_mj.control.config.MPCConfig.footprint` set to ``footprint`` (``"disc"``:
+    exactly ``ControllerSpec(controller)``; ``"discs"``: the other footprint settings are
+    :class:`~sanav_mj.control.config.MPCConfig`'s defaults). What ``--footprint`` selects."""
+    from dataclasses import replace
+
+    spec = ControllerSpec(controller)
+    if footprint == "disc":
+        return spec
+    return replace(spec, sa_mpc=replace(spec.sa_mpc, footprint=footprint))
+
+
 def map_inflation(scenario: Scenario, spec: ControllerSpec = ControllerSpec()) -> float:
     """[m] obstacle inflation of the map for ``spec``'s SA-MPC footprint mode: the
     circumscribed radius + :data:`DEFAULT_MARGIN_M` (``"disc"``), or the radius of the
@@ -117,6 +130,36 @@ def map_inflation(scenario: Scenario, spec: ControllerSpec = ControllerSpec()) -
 
         return robot_footprint(scenario.model).discs(mpc.footprint_discs)[1] + mpc.footprint_margin
     return scenario.robot.footprint_radius + DEFAULT_MARGIN_M
+
+
+def map_config(spec: ControllerSpec = ControllerSpec(), resolution: float = 0.05, merge: str = "paper") -> Any:
+    """The :class:`~sanav_mj.mapping.MapConfig` of ``spec``'s SA-MPC footprint mode at cell
+    ``resolution`` [m]: one grid (``"disc"``, or ``"discs"`` with ``footprint_refine`` 1), or
+    ``resolution`` refined locally by ``footprint_refine`` where the free space is narrower
+    than ``footprint_refine_width`` (``"discs"``; the map's cells are then
+    ``resolution / footprint_refine``)."""
+    from sanav_mj.mapping import MapConfig
+
+    mpc = spec.sa_mpc
+    if mpc.footprint == "discs" and mpc.footprint_refine > 1:
+        return MapConfig(resolution=resolution, merge=merge, refine=mpc.footprint_refine,
+                         refine_width=mpc.footprint_refine_width)
+    return MapConfig(resolution=resolution, merge=merge)
+
+
+def with_free_cells(m: Any, spec: ControllerSpec = ControllerSpec()) -> Any:
+    """The safe-area map ``m`` as it is, or in ``"discs"`` mode with ``footprint_grow > 0`` with
+    its areas carrying the grid's :class:`~sanav_mj.mapping.grow.FreeCells` (growth limit
+    ``footprint_grow``, tightening ``footprint_grow_tighten``), so SA-MPC's corridor chain grows its boxes to maximal free
+    rectangles (:meth:`sanav_mj.control.stages.CorridorChain.build`)."""
+    from dataclasses import replace
+
+    mpc = spec.sa_mpc
+    if mpc.footprint != "discs" or mpc.footprint_grow == 0:
+        return m
+    from sanav_mj.mapping.grow import FreeCells
+
+    return replace(m, areas=replace(m.areas, free=FreeCells.of(m.grid, mpc.footprint_grow, mpc.footprint_grow_tighten)))
 
 
 def planning_areas(areas: SafeAreas, scenario: Scenario, spec: ControllerSpec = ControllerSpec()) -> SafeAreas:
@@ -197,15 +240,16 @@ def prepare(
         start: (3,) [m, m, rad] start pose to plan from (default: the scenario's).
         controller: the controller spec the planner is matched to (:func:`planner_config`).
     """
-    from sanav_mj.mapping import MapConfig, MapMemoryError, build_map
+    from sanav_mj.mapping import MapMemoryError, build_map
     from sanav_mj.planning import plan as make_plan
 
     scenario = spec if isinstance(spec, Scenario) else load_scenario(spec)
     inflation = map_inflation(scenario, controller)
     try:
-        m = build_map(scenario.obstacles, scenario.bounds, inflation, MapConfig(resolution=resolution, merge=merge))
+        m = build_map(scenario.obstacles, scenario.bounds, inflation, map_config(controller, resolution, merge))
     except MapMemoryError as err:  # name the file too (ScenarioError: exit 2)
         raise MapMemoryError(f"{scenario.path}: {err}") from None
+    m = with_free_cells(m, controller)
     t0 = time.perf_counter()
     pose = scenario.start if start is None else np.asarray(start, dtype=float)
     plan = make_plan(planning_areas(m.areas, scenario, controller), pose, scenario.goal, scenario.robot,
@@ -453,6 +497,7 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
     the known-map mode's inflation (footprint radius + :data:`DEFAULT_MARGIN_M`), the lidar
     offset of the robot file, the planner matched to the MPC, the grid ``resolution`` [m]."""
     from sanav_mj.control.sensing import SensingConfig, SensingSAMPC
+    from sanav_mj.footprint import robot_footprint
     from sanav_mj.mapping.sensed_map import SensedMapConfig
     from sanav_mj.sim.lidar import lidar_config
 
@@ -461,7 +506,8 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
     spec = cspec.with_solve_budget(mismatch.solve_budget_ms)
     return SensingSAMPC(scenario.robot, scenario.bounds, scenario.goal, inflation, lcfg.offset,
                         spec.sa_mpc, planner_config(scenario.robot, spec),
-                        SensingConfig(map=SensedMapConfig(resolution=resolution)))
+                        SensingConfig(map=SensedMapConfig(resolution=resolution),
+                                      footprint=robot_footprint(scenario.model)))
 
 
 def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, resolution: float,
@@ -505,6 +551,7 @@ def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, reso
                           progress=ReplannedRouteProgress(lambda: ctrl.route, scenario.goal),
                           on_step=hook, scan=lambda: lidar.scan(plant.data, lidar_rng),
                           scan_period_s=lcfg.period)
+    ctrl.settle()  # a background plan requested at the last step is not used
     doc = episode_json(episode, scenario=scenario.name, controller=cspec.name, seed=seed, start=start,
                        goal=scenario.goal, rects=None, mismatch=mismatch.changed(), setup_ms=0.0)
     doc["safe_area_violations"] = int(sum(outside))

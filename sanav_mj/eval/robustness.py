@@ -240,6 +240,7 @@ def run_robustness(
     resume: bool = False,
     ray: str | bool | Any = None,
     sensing: str = "map",
+    footprint: str = "disc",
 ) -> list[dict[str, Any]]:
     """Run the sweep and write CSVs and heat maps into ``out``.
 
@@ -261,6 +262,8 @@ def run_robustness(
             :func:`sanav_mj.eval.bench.run_bench` (True: a local Ray; an address: a cluster;
             None: the pool of ``workers``); the rows, outputs and journal are the same.
         sensing: ``"map"`` or ``"lidar"`` for every run (lidar: SA-MPC only).
+        footprint: SA-MPC's ``"disc"`` or ``"discs"`` for every run (``meta.json`` names it
+            when not ``"disc"``).
 
     Returns:
         One summary row per grid point pooled over the scenarios (``scenario`` =
@@ -304,7 +307,7 @@ def run_robustness(
                 tags = ((xk, x),) + (((yk, y),) if yk else ()) + (("_cell", (yi, xi)),)
                 for s in scenarios:
                     for k in range(seeds):
-                        yield Job(s, controller, k, items, time_limit_s, None, tags, sensing)
+                        yield Job(s, controller, k, items, time_limit_s, None, tags, sensing, footprint)
 
     n_jobs = len(yv) * len(xv) * len(scenarios) * seeds
     # keys are distinct by construction when the scenarios and each key's values are
@@ -318,6 +321,8 @@ def run_robustness(
         meta = {"command": "robustness", **run_metadata(scenarios, [controller], seeds, workers, time_limit_s)}
         if sensing != "map":
             meta["sensing"] = sensing
+        if footprint != "disc":
+            meta["footprint"] = footprint
         meta["sweep"] = {k: [_value(k, v) for v in vals] for k, vals in sweep}
         meta["fixed"] = dict(base)
         meta["executor"] = describe(ray)

@@ -8,6 +8,7 @@ from dataclasses import dataclass, replace
 from math import isfinite
 
 from sanav_mj.mapping.occupancy import MEMORY_BUDGET_BYTES, rasterise
+from sanav_mj.mapping.refine import refine_narrow
 from sanav_mj.mapping.safe_areas import MERGE_METHODS, SafeAreaMap, build_safe_areas
 from sanav_mj.scene import Obstacle
 
@@ -25,6 +26,12 @@ class MapConfig:
         resolution: [m] occupancy cell edge length, > 0 (CLI ``--resolution``).
         min_cell: [cells] quadtree minimum node size, integer >= 1.
         merge: merge method, one of :data:`~sanav_mj.mapping.safe_areas.MERGE_METHODS`.
+        refine: integer >= 1; > 1 rasterises a second exact grid at ``resolution / refine``
+            and uses its cells where the free space is narrow
+            (:func:`~sanav_mj.mapping.refine.refine_narrow`); the map's cells are then
+            ``resolution / refine``. 1 (default): one grid at ``resolution``.
+        refine_width: [m] with ``refine > 1``: a fine cell is used where its free run along x
+            or y is at most this long (>= 0).
         memory_budget_bytes: [bytes] a grid whose estimate
             (:func:`~sanav_mj.mapping.occupancy.map_memory_bytes`, about 1.34 bytes per cell)
             exceeds this is refused before allocating, naming a ``--resolution`` that fits
@@ -35,6 +42,8 @@ class MapConfig:
     min_cell: int = 1
     merge: str = "paper"
     memory_budget_bytes: int = MEMORY_BUDGET_BYTES
+    refine: int = 1
+    refine_width: float = 0.25
 
     def __post_init__(self) -> None:
         if not (isinstance(self.resolution, (int, float)) and isfinite(self.resolution) and self.resolution > 0):
@@ -47,6 +56,11 @@ class MapConfig:
             raise ValueError(
                 f"MapConfig.memory_budget_bytes must be an integer > 0 [bytes], got {self.memory_budget_bytes!r}"
             )
+        if isinstance(self.refine, bool) or not isinstance(self.refine, int) or not 1 <= self.refine <= 16:
+            raise ValueError(f"MapConfig.refine must be an integer in [1, 16], got {self.refine!r}")
+        rw = self.refine_width
+        if isinstance(rw, bool) or not (isinstance(rw, (int, float)) and isfinite(rw) and rw >= 0):
+            raise ValueError(f"MapConfig.refine_width must be a finite number >= 0 [m], got {rw!r}")
         if self.merge not in MERGE_METHODS:
             raise ValueError(f"MapConfig.merge must be one of {MERGE_METHODS}, got {self.merge!r}")
 
@@ -63,7 +77,7 @@ def build_map(
         obstacles: static obstacles in the world frame (``Scenario.obstacles``).
         bounds: (4,) [m] workspace xmin, ymin, xmax, ymax (``Scenario.bounds``).
         inflation: [m] obstacle inflation, >= 0 (robot footprint radius + margin).
-        config: resolution, quadtree minimum cell, merge method, memory budget.
+        config: resolution, quadtree minimum cell, merge method, memory budget, local refinement.
 
     Raises:
         MapMemoryError: the grid's estimate exceeds ``config.memory_budget_bytes`` (nothing allocated).
@@ -75,6 +89,10 @@ def build_map(
     t0 = time.perf_counter()
     grid = rasterise(obstacles, bounds, config.resolution, inflation=inflation,
                      memory_budget_bytes=config.memory_budget_bytes)
+    if config.refine > 1:
+        fine = rasterise(obstacles, bounds, config.resolution / config.refine, inflation=inflation,
+                         memory_budget_bytes=config.memory_budget_bytes)
+        grid = refine_narrow(grid, fine, config.refine_width)
     t1 = time.perf_counter()
     result = build_safe_areas(grid, config.min_cell, config.merge)
     t2 = time.perf_counter()

@@ -468,7 +468,32 @@ class LiveGrid:
         occ = (ei * nx + ej)[ein]
         extra = np.unique(occ[mark[occ] == 0])  # return cells no beam crossed
         mark[occ] = 2  # a cell hit in this scan counts as hit, not crossed
-        touched = np.concatenate([free, extra])
+        return self._commit(np.concatenate([free, extra]), occ)
+
+    def observe_free(self, cells) -> MapUpdate:
+        """Observe cells free without a beam (e.g. the cells the robot's own body covers).
+
+        Each cell gets ``l_free`` once, with the rules of a scan: a cell that ever held a
+        return never drops below ``hit_floor`` (it is not made free).
+
+        Args:
+            cells: (K,) int flat indices ``i * nx + j`` inside the grid (repeats allowed).
+
+        Returns:
+            The cells whose state and whose safe state changed, as :meth:`integrate`.
+        """
+        c = np.unique(np.asarray(cells, dtype=np.int64).reshape(-1))
+        if c.size and (c[0] < 0 or c[-1] >= self.shape[0] * self.shape[1]):
+            raise ValueError(f"cells must be flat indices in [0, {self.shape[0] * self.shape[1]}), got "
+                             f"[{c[0]}, {c[-1]}]")
+        self._mark[c] = 1
+        return self._commit(c, np.zeros(0, np.int64))
+
+    def _commit(self, touched: np.ndarray, occ: np.ndarray) -> MapUpdate:
+        """Apply the log-odds increments ``mark`` selects (1 crossed, 2 hit) to the distinct
+        ``touched`` cells (``occ``: the hit cells, repeats allowed), reset ``mark`` there and
+        update the safe and route counts."""
+        mark = self._mark
         lo = self.log_odds.reshape(-1)
         old = lo[touched]
         c = self.config

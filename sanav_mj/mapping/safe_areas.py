@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -46,12 +46,17 @@ class SafeAreas:
         edges: (E, 2) int, pairs ``i < j`` of areas sharing a boundary segment of positive length.
         weights: (E,) [m] distance between the two areas' centres.
         portals: (E, 2, 2) [m] the shared boundary segment of each edge, endpoints ``[[x0, y0], [x1, y1]]``.
+        free: optional :class:`~sanav_mj.mapping.grow.FreeCells` of the grid the areas were
+            cut from; when set, SA-MPC's corridor chain grows its boxes to maximal free
+            rectangles of that grid (:meth:`sanav_mj.control.stages.CorridorChain.build`).
+            None (default): the chain uses the areas as they are.
     """
 
     rects: np.ndarray
     edges: np.ndarray
     weights: np.ndarray
     portals: np.ndarray
+    free: Any = None
 
 
 def _check_boxes(boxes) -> np.ndarray:

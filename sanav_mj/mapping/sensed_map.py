@@ -26,6 +26,7 @@ import numpy as np
 from sanav_mj.mapping.incremental import IncrementalSafeAreas
 from sanav_mj.mapping.live_grid import LiveGrid, LiveGridConfig
 from sanav_mj.mapping.safe_areas import SafeAreas
+from sanav_mj.mapping.scan_match import LikelihoodField, MatchResult, ScanMatchConfig, ScanMatcher, scan_points
 
 
 @dataclass(frozen=True)
@@ -40,6 +41,7 @@ class SensedMapConfig:
         route: also keep the *route* areas (:meth:`LiveGrid.route_safe`: unknown counts as
             passable, only occupied cells are inflated), on which a route towards a goal in
             unexplored space can be planned; the MPC's constraints use the safe areas only.
+        match: the scan matcher's settings (:meth:`SensedMap.match`).
     """
 
     resolution: float = 0.05
@@ -47,6 +49,7 @@ class SensedMapConfig:
     tile: int = 32
     grid: LiveGridConfig = field(default_factory=LiveGridConfig)
     route: bool = True
+    match: ScanMatchConfig = field(default_factory=ScanMatchConfig)
 
     def __post_init__(self) -> None:
         if not (isinstance(self.resolution, (int, float)) and math.isfinite(self.resolution) and self.resolution > 0):
@@ -106,6 +109,30 @@ class SensedMap:
                       if config.route else None)
         self._route_snapshot = self.route.safe_areas() if self.route is not None else (None, None)
         self._route_stale = False  # route areas updated since the last route snapshot
+        g = self.grid
+        self.field = LikelihoodField(g.shape, g.origin, g.resolution, config.match.sigma, config.match.radius_cells)
+        self.matcher = ScanMatcher(self.field, config.match)
+
+    def match(self, prior, ranges, hit, angles, anchor=None, anchor_sigma=(math.inf, math.inf), check=None
+              ) -> MatchResult:
+        """Match a scan against the map's returns so far (:mod:`sanav_mj.mapping.scan_match`).
+
+        Args:
+            prior: (3,) [m, m, rad] predicted robot pose (e.g. odometry).
+            ranges: (B,) [m]; hit: (B,) bool; angles: (B,) [rad] relative to the heading, in
+                scan order.
+            anchor, anchor_sigma: an absolute pose measurement and its standard deviations
+                ([m], [rad]); check: a pose to test against the match; as
+                :meth:`ScanMatcher.match`.
+
+        Returns:
+            The match (``status == "empty"`` while the map holds no return, or when the scan
+            has fewer than ``min_inliers`` usable returns: nothing to match against).
+        """
+        pts, normals = scan_points(ranges, hit, angles, self.sensor_offset, self.config.match.max_points)
+        if len(pts) < self.config.match.min_inliers:
+            pts, normals = pts[:0], normals[:0]
+        return self.matcher.match(prior, pts, normals, anchor, anchor_sigma, check)
 
     def integrate(self, pose, ranges, hit, angles, route_snapshot: bool = True) -> SensedUpdate:
         """Add one scan taken at the measured robot pose.
@@ -128,7 +155,13 @@ class SensedMap:
         c, s = math.cos(p[2]), math.sin(p[2])
         ox, oy = self.sensor_offset
         origin = (p[0] + c * ox - s * oy, p[1] + s * ox + c * oy)
-        return self._integrate_at(origin, float(p[2]), ranges, hit, angles, route_snapshot)
+        up = self._integrate_at(origin, float(p[2]), ranges, hit, angles, route_snapshot)
+        # the returns also feed the scan matcher's field (first return per cell)
+        r = np.asarray(ranges, dtype=float)
+        a = np.asarray(angles, dtype=float) + p[2]
+        h = np.asarray(hit, dtype=bool) & np.isfinite(r) & np.isfinite(a)
+        self.field.add_points(np.stack([origin[0] + r[h] * np.cos(a[h]), origin[1] + r[h] * np.sin(a[h])], axis=1))
+        return up
 
     def route_areas(self) -> tuple[np.ndarray | None, SafeAreas | None]:
         """The current route areas: (R, 4) int64 cell boxes and :class:`SafeAreas` (as
@@ -168,11 +201,80 @@ class SensedMap:
         return self._integrate_at((p[0], p[1]), float(p[2]), ranges, np.zeros(int(beams), bool), angles,
                                   route_snapshot)
 
+    def clear_box(self, pose, box, shrink: float, route_snapshot: bool = True) -> SensedUpdate:
+        """Observe free the cells that lie entirely inside the robot's body rectangle, shrunk.
+
+        The robot's body covers ``box`` (its footprint rectangle in the base frame); with the
+        pose known to within a position error ``e_p`` and a yaw error ``e_y``, every point of
+        the body is within ``e_p + rho * e_y`` of where ``pose`` puts it (``rho``: the largest
+        distance of a body point from the base origin). A cell whose closed square lies
+        inside the rectangle shrunk by ``shrink >= e_p + rho * e_y`` therefore lies inside
+        the true body, where no obstacle can be (short of a collision). Those cells get one
+        free observation (:meth:`LiveGrid.observe_free`: a cell that ever held a return is
+        not made free).
+
+        Args:
+            pose: (3,) [m, m, rad] estimated robot pose.
+            box: (xmin, xmax, ymin, ymax) [m] body rectangle in the base frame.
+            shrink: [m] distance by which the rectangle is shrunk, >= 0.
+            route_snapshot: as :meth:`integrate`.
+
+        Returns:
+            The update, as :meth:`integrate`.
+        """
+        p = np.asarray(pose, dtype=float).reshape(-1)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ValueError(f"pose must be 3 finite numbers [m, m, rad], got {pose!r}")
+        x0, x1, y0, y1 = (float(v) for v in box)
+        if not (x1 > x0 and y1 > y0 and math.isfinite(shrink) and shrink >= 0):
+            raise ValueError(f"box must be (xmin, xmax, ymin, ymax) with xmin < xmax, ymin < ymax and shrink "
+                             f"finite >= 0 [m], got {box!r}, {shrink!r}")
+        return self._integrate_cells(self.box_cells(p, (x0, x1, y0, y1), shrink), route_snapshot)
+
+    def box_cells(self, pose, box, shrink: float) -> np.ndarray:
+        """(K,) int64 flat indices of the cells whose closed squares lie inside the rectangle
+        ``box`` (xmin, xmax, ymin, ymax) [m] of the base frame at ``pose`` (3,), shrunk by
+        ``shrink`` [m] (see :meth:`clear_box`)."""
+        g = self.grid
+        h = g.resolution
+        ny, nx = g.shape
+        x0, x1, y0, y1 = box
+        x0, x1, y0, y1 = x0 + shrink, x1 - shrink, y0 + shrink, y1 - shrink
+        if x1 < x0 or y1 < y0:
+            return np.zeros(0, np.int64)
+        rho = max(math.hypot(x, y) for x in (x0, x1) for y in (y0, y1))
+        j0 = max(0, int(math.floor((pose[0] - rho - g.origin[0]) / h)))
+        j1 = min(nx, int(math.ceil((pose[0] + rho - g.origin[0]) / h)))
+        i0 = max(0, int(math.floor((pose[1] - rho - g.origin[1]) / h)))
+        i1 = min(ny, int(math.ceil((pose[1] + rho - g.origin[1]) / h)))
+        if j1 <= j0 or i1 <= i0:
+            return np.zeros(0, np.int64)
+        ii, jj = np.mgrid[i0:i1, j0:j1]
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        inside = np.ones(ii.shape, dtype=bool)
+        for di in (0, 1):  # a square is inside the (convex) rectangle iff its four corners are
+            for dj in (0, 1):
+                wx = g.origin[0] + (jj + dj) * h - pose[0]
+                wy = g.origin[1] + (ii + di) * h - pose[1]
+                bx = c * wx + s * wy
+                by = -s * wx + c * wy
+                inside &= (bx >= x0) & (bx <= x1) & (by >= y0) & (by <= y1)
+        return (ii[inside] * nx + jj[inside]).astype(np.int64)
+
+    def _integrate_cells(self, cells, route_snapshot: bool) -> SensedUpdate:
+        t0 = time.perf_counter()
+        up = self.grid.observe_free(cells)
+        return self._areas_after(up, t0, time.perf_counter(), route_snapshot)
+
     def _integrate_at(self, origin, heading: float, ranges, hit, angles, route_snapshot: bool = True
                       ) -> SensedUpdate:
         t0 = time.perf_counter()
         up = self.grid.integrate(origin, heading, ranges, hit, angles)
-        t1 = time.perf_counter()
+        return self._areas_after(up, t0, time.perf_counter(), route_snapshot)
+
+    def _areas_after(self, up, t0: float, t1: float, route_snapshot: bool) -> SensedUpdate:
+        """Bring the safe and route areas up to date after the grid update ``up`` (timed from
+        ``t0``; the grid update ended at ``t1``)."""
         cells = up.safe_changed
         if cells.size:
             self.areas.update_cells(cells, ~self.grid.safe_at(cells))
@@ -193,6 +295,14 @@ class SensedMap:
                             n_safe_changed=int(cells.size), boxes=boxes, areas=areas, timing_ms=timing,
                             route_changed=bool(rcells.size) and self.route is not None,
                             route_boxes=route_boxes, route_areas=route_areas)
+
+    def areas_now(self) -> SafeAreas:
+        """The current safe areas (as the last update returned them)."""
+        return self._snapshot[1]
+
+    def boxes_now(self) -> np.ndarray:
+        """(R, 4) int64 cell boxes of the current safe areas."""
+        return self._snapshot[0]
 
     def rects_still_safe(self, rects) -> np.ndarray:
         """Whether each world rectangle still lies entirely in safe cells.

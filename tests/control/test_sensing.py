@@ -14,10 +14,10 @@ from sanav_mj.mapping.live_grid import OCCUPIED
 from sanav_mj.scene import load_scenario
 
 
-def _ctrl():
+def _ctrl(**kwargs):
     sc = load_scenario("single_rect")
     return sc, SensingSAMPC(sc.robot, (-2.0, -3.0, 8.0, 3.0), (6.0, 0.0), sc.robot.footprint_radius + 0.05,
-                            (0.12, 0.0))
+                            (0.12, 0.0), config=SensingConfig(**kwargs))
 
 
 def _wall_scan(dist: float):
@@ -30,15 +30,29 @@ def _wall_scan(dist: float):
 
 @pytest.mark.parametrize("dx", [0.0, 1.0])
 def test_scan_is_placed_at_the_measured_pose(dx):
-    """The same scan at a measured pose 1 m further in x puts its returns exactly 20 cells
-    (1 m at 0.05 m) further: the map follows what the controller measures, noise included."""
-    _, ctrl = _ctrl()
+    """Without localisation, the same scan at a measured pose 1 m further in x puts its
+    returns exactly 20 cells (1 m at 0.05 m) further: the map follows what the controller
+    measures, noise included."""
+    _, ctrl = _ctrl(localise=False)
     ctrl.step(Observation(t=0.0, pose=np.array([dx, 0.0, 0.0]), velocity=np.zeros(2), scan=_wall_scan(2.0)))
     occ = np.argwhere(ctrl.map.grid.states() == OCCUPIED)
     cols = occ[:, 1]
     # returns at x = dx + 0.12 + 2.0 m; grid origin x = -2 m, cells of 0.05 m
     expected = int(np.floor((dx + 2.12 + 2.0) / 0.05))
     assert abs(np.median(cols) - expected) <= 1
+
+
+def test_localising_starts_at_the_reset_pose():
+    """With localisation the first scan is placed at the pose given to reset (the start),
+    not at a measured pose 1 m off: with nothing to match, prediction and measurement are
+    blended by their variances (odometry 5 mm against the initially assumed 5 cm)."""
+    _, ctrl = _ctrl()
+    ctrl.reset(np.zeros(3))
+    ctrl.step(Observation(t=0.0, pose=np.array([1.0, 0.0, 0.0]), velocity=np.zeros(2), scan=_wall_scan(2.0)))
+    assert ctrl.match_log[0][0] == "empty"
+    assert abs(ctrl.estimate[0]) < 0.05  # the blend moved it by 1 m * 0.005^2 / (0.005^2 + 0.05^2)
+    first = np.argwhere(ctrl.map.grid.states() == OCCUPIED)
+    assert abs(np.median(first[:, 1]) - np.floor((ctrl.estimate[0] + 2.12 + 2.0) / 0.05)) <= 1
 
 
 def test_turns_on_the_spot_until_its_own_position_is_observed_safe():
@@ -56,7 +70,10 @@ def test_turns_on_the_spot_until_its_own_position_is_observed_safe():
 
 
 @pytest.mark.parametrize("kwargs", [{"replan_interval": 0}, {"beam_stride": 0}, {"scan_turn_rate": -1.0},
-                                    {"max_scan_turn_s": float("inf")}, {"replan_interval": True}])
+                                    {"max_scan_turn_s": float("inf")}, {"replan_interval": True},
+                                    {"controller_pose": "true"}, {"pose_bound": (0.03, -1.0)},
+                                    {"meas_sigma0": (0.0, 0.05)}, {"meas_forget": 2.0},
+                                    {"consistent_chi2": float("nan")}, {"footprint": (0.1, 0.2)}])
 def test_config_errors_name_the_field(kwargs):
     with pytest.raises(ValueError, match=next(iter(kwargs))):
         SensingConfig(**kwargs)

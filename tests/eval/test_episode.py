@@ -200,3 +200,62 @@ def test_the_controller_spec_reaches_the_controller_and_the_planner():
     assert v_ref.max() == pytest.approx(0.8 * 0.5, rel=1e-3)  # the planner's cap: 0.8 of that bound
     with pytest.raises(ValueError, match="controller_spec: names controller 'sa-mpc' but controller='dwa'"):
         run_scenario("single_rect", controller="dwa", controller_spec=spec)
+
+
+def test_footprint_spec_and_map_config():
+    from dataclasses import replace
+
+    from sanav_mj.control.spec import ControllerSpec
+    from sanav_mj.eval.episode import footprint_spec, map_config
+    from sanav_mj.mapping import MapConfig
+
+    assert footprint_spec() == ControllerSpec() and footprint_spec("dwa") == ControllerSpec("dwa")
+    discs = footprint_spec("sa-mpc", "discs")
+    assert discs == replace(ControllerSpec(), sa_mpc=replace(ControllerSpec().sa_mpc, footprint="discs"))
+    assert map_config() == MapConfig() and map_config(resolution=0.1) == MapConfig(resolution=0.1)
+    refined = replace(discs, sa_mpc=replace(discs.sa_mpc, footprint_refine=2, footprint_refine_width=0.3))
+    assert map_config(refined, 0.05) == MapConfig(resolution=0.05, refine=2, refine_width=0.3)
+    # the refinement is a discs-mode setting: the disc mode ignores it
+    disc_refined = replace(ControllerSpec(), sa_mpc=replace(ControllerSpec().sa_mpc, footprint_refine=2))
+    assert map_config(disc_refined, 0.05) == MapConfig(resolution=0.05)
+
+
+def test_prepare_refines_the_map_in_discs_mode_only():
+    from dataclasses import replace
+
+    from sanav_mj.eval.episode import footprint_spec
+
+    discs = footprint_spec("sa-mpc", "discs")
+    assert discs.sa_mpc.footprint_refine == 2  # the discs mode's default
+    one = replace(discs, sa_mpc=replace(discs.sa_mpc, footprint_refine=1))
+    a, b = prepare("double_rect", controller=one), prepare("double_rect", controller=discs)
+    assert prepare("double_rect").grid.resolution == 0.05
+    assert a.grid.resolution == 0.05 and b.grid.resolution == 0.025
+    # the refined map frees a superset of the coarse map's space (each coarse cell = 2 x 2 fine cells)
+    up = np.repeat(np.repeat(a.grid.occupied, 2, axis=0), 2, axis=1)[: b.grid.shape[0], : b.grid.shape[1]]
+    assert not (~up & b.grid.occupied).any()
+    assert b.plan.ok
+
+
+def test_free_cells_reach_the_controller_only_in_discs_mode_with_growth():
+    from dataclasses import replace
+
+    from sanav_mj.control.factory import make_controller
+    from sanav_mj.eval.episode import footprint_spec
+
+    discs = footprint_spec("sa-mpc", "discs")
+    assert discs.sa_mpc.footprint_grow == 0.0  # the discs mode's default: off
+    assert prepare("double_rect", controller=discs).areas.free is None
+    grow = replace(discs, sa_mpc=replace(discs.sa_mpc, footprint_grow=0.5))
+    disc_grow = replace(footprint_spec(), sa_mpc=replace(footprint_spec().sa_mpc, footprint_grow=0.5))
+    off = replace(discs, sa_mpc=replace(discs.sa_mpc, footprint_grow=0.0))
+    assert prepare("double_rect", controller=off).areas.free is None
+    assert prepare("double_rect").areas.free is None
+    assert prepare("double_rect", controller=disc_grow).areas.free is None
+    p = prepare("double_rect", controller=grow)
+    assert p.areas.free is not None and p.areas.free.limit == 0.5
+    ctrl = make_controller(grow, p.scenario, p.grid, p.areas, p.plan)
+    assert ctrl.chain.area_rects is not None
+    for box in ctrl.chain.boxes:  # every member is whole free cells of the map's grid
+        i0, j0, i1, j1 = p.areas.free.cells_of(box)
+        assert not p.grid.occupied[i0:i1, j0:j1].any()

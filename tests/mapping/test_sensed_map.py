@@ -112,3 +112,68 @@ def test_route_areas_on_demand_equal_the_per_scan_snapshot():
                 assert np.array_equal(getattr(a, name), getattr(ue.route_areas, name))
             assert lazy.route_areas()[1] is a  # nothing changed since: the same snapshot
     assert len(b) > 5
+
+
+BODY = (-0.25, 0.25, -0.215, 0.215)  # the packaged robot's footprint rectangle (deck) [m]
+
+
+def _inside_body(pts, pose, box, tol=1e-9):
+    """Whether (P, 2) world points lie in the body rectangle ``box`` at ``pose``."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    dx, dy = pts[:, 0] - pose[0], pts[:, 1] - pose[1]
+    bx, by = c * dx + s * dy, -s * dx + c * dy
+    return (bx >= box[0] - tol) & (bx <= box[1] + tol) & (by >= box[2] - tol) & (by <= box[3] + tol)
+
+
+def _corners(m, cells):
+    g = m.grid
+    i, j = np.divmod(cells, g.shape[1])
+    return [np.stack([g.origin[0] + (j + dj) * g.resolution, g.origin[1] + (i + di) * g.resolution], axis=1)
+            for di in (0, 1) for dj in (0, 1)]
+
+
+def test_body_cells_lie_inside_the_true_body_for_any_pose_error_within_the_bound():
+    """Own-footprint clearing never frees a cell an obstacle could occupy: for random true
+    poses and estimated poses off by at most e_p (position) and e_y (yaw), every cell
+    box_cells returns for the estimate, shrunk by e_p + rho e_y, lies entirely (all four
+    corners) inside the body rectangle at the TRUE pose, where no obstacle is. With no
+    shrink, some cells stick out (the test can fail)."""
+    m = SensedMap((-3.0, -3.0, 3.0, 3.0), 0.38, (0.12, 0.0))
+    rng = np.random.default_rng(5)
+    rho = max(math.hypot(x, y) for x in BODY[:2] for y in BODY[2:])
+    e_p, e_y = 0.03, 0.02
+    outside_unshrunk = 0
+    for _ in range(300):
+        true = np.array([rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(-math.pi, math.pi)])
+        ang = rng.uniform(0, 2 * math.pi)
+        est = true + np.array([e_p * math.cos(ang), e_p * math.sin(ang), rng.choice([-1, 1]) * e_y])
+        cells = m.box_cells(est, BODY, e_p + rho * e_y)
+        assert len(cells) > 20
+        for corner in _corners(m, cells):
+            assert _inside_body(corner, true, BODY).all()
+        loose = m.box_cells(est, BODY, 0.0)
+        outside_unshrunk += sum(int((~_inside_body(c, true, BODY)).any()) for c in _corners(m, loose))
+    assert outside_unshrunk > 0
+
+
+def test_clear_box_frees_the_body_cells_once_but_never_a_cell_that_held_a_return():
+    m = SensedMap((-3.0, -3.0, 3.0, 3.0), 0.38, (0.12, 0.0))
+    pose = np.array([0.0, 0.0, 0.4])
+    cells = m.box_cells(pose, BODY, 0.04)
+    g = m.grid
+    # a return inside the body rectangle (impossible for a real robot; a stale scan)
+    inside = cells[len(cells) // 2]
+    i, j = divmod(int(inside), g.shape[1])
+    x = g.origin[0] + (j + 0.5) * g.resolution
+    y = g.origin[1] + (i + 0.5) * g.resolution
+    sx, sy = x - 1.0, y  # a sensor 1 m to the left, one beam
+    g.integrate((sx, sy), 0.0, np.array([1.0]), np.array([True]), np.array([0.0]))
+    assert g.states().reshape(-1)[inside] == 2  # occupied
+    before = g.log_odds.reshape(-1).copy()
+    m.clear_box(pose, BODY, 0.04)
+    st = g.states().reshape(-1)
+    assert st[inside] != 1  # never freed
+    others = cells[cells != inside]
+    assert (st[others] == 1).all()  # the others are free after one observation
+    expected = np.maximum(before[others] + np.float32(g.config.l_free), np.float32(g.config.l_min))
+    assert np.array_equal(g.log_odds.reshape(-1)[others], expected)  # one l_free each

@@ -1,0 +1,131 @@
+"""Grow a free rectangle of an occupancy grid to a maximal free one (overlapping safe areas).
+
+The merged safe areas partition the free cells; where the free space runs diagonally the
+partition is a staircase of thin rectangles that touch along short edges, and a convex box
+per predicted state leaves little room. A rectangle made only of free cells of the exact grid
+(:mod:`sanav_mj.mapping.occupancy`) is as safe as any safe area, whether or not it is one of
+the partition's: :func:`grow_rect` extends a free rectangle side by side, one cell row or
+column at a time, while the new strip holds only free cells, and so returns a free rectangle
+that contains the input and overlaps its neighbours in the partition.
+
+The order is fixed: rounds over the sides -x, +x, -y, +y, each extended by one cell if the
+strip beyond it is free (and the side has not yet moved ``limit`` from where it started),
+until a round extends none. Each test is one lookup in a summed-area table of occupied cells.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sanav_mj.mapping.occupancy import OccupancyGrid
+
+__all__ = ["FreeCells", "grow_rect"]
+
+
+@dataclass(frozen=True)
+class FreeCells:
+    """A grid's occupied-cell counts for O(1) "is this block free" queries.
+
+    Attributes:
+        sat: (ny+1, nx+1) int64 summed-area table: ``sat[i, j]`` occupied cells in rows < i, columns < j.
+        origin: (2,) [m] world x, y of the grid's lower-left corner.
+        resolution: [m] cell edge.
+        limit: [m] how far a user of the table (the corridor chain of SA-MPC) lets a side of a
+            rectangle move out (:func:`grow_rect`'s ``limit``).
+        tighten: [m] how much more than its usual margin that user shrinks the grown
+            rectangles (never inside the rectangles they grew from, shrunk as usual).
+    """
+
+    sat: np.ndarray
+    origin: np.ndarray
+    resolution: float
+    limit: float = 1.0
+    tighten: float = 0.0
+
+    @staticmethod
+    def of(grid: OccupancyGrid, limit: float = 1.0, tighten: float = 0.0) -> FreeCells:
+        """The table of ``grid`` (its ``occupied`` cells), with growth ``limit`` and ``tighten`` [m] (>= 0)."""
+        for name, v in (("limit", limit), ("tighten", tighten)):
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be finite and >= 0 [m], got {v!r}")
+        occ = np.asarray(grid.occupied, dtype=np.int64)
+        sat = np.zeros((occ.shape[0] + 1, occ.shape[1] + 1), dtype=np.int64)
+        sat[1:, 1:] = occ.cumsum(axis=0).cumsum(axis=1)
+        return FreeCells(sat, np.asarray(grid.origin, dtype=float).copy(), float(grid.resolution), float(limit),
+                         float(tighten))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(ny, nx) cells."""
+        return self.sat.shape[0] - 1, self.sat.shape[1] - 1
+
+    def occupied_in(self, i0: int, j0: int, i1: int, j1: int) -> int:
+        """Occupied cells in rows ``[i0, i1)`` and columns ``[j0, j1)``."""
+        s = self.sat
+        return int(s[i1, j1] - s[i0, j1] - s[i1, j0] + s[i0, j0])
+
+    def cells_of(self, rect) -> tuple[int, int, int, int]:
+        """Cell box ``(i0, j0, i1, j1)`` of a world rectangle (4,) [m] on the grid's lattice.
+
+        Raises:
+            ValueError: the rectangle's sides are not on cell boundaries (within 1e-6 cell)
+                or it leaves the grid.
+        """
+        r = np.asarray(rect, dtype=float)
+        u = np.array([(r[1] - self.origin[1]), (r[0] - self.origin[0]), (r[3] - self.origin[1]),
+                      (r[2] - self.origin[0])]) / self.resolution
+        k = np.rint(u).astype(np.int64)
+        ny, nx = self.shape
+        if (np.max(np.abs(u - k)) > 1e-6 or k[0] < 0 or k[1] < 0 or k[2] > ny or k[3] > nx
+                or k[2] <= k[0] or k[3] <= k[1]):
+            raise ValueError(f"rect {r.tolist()}: expected a rectangle of whole cells of the grid "
+                             f"(cell {self.resolution} m, origin {self.origin.tolist()}, {ny} x {nx} cells)")
+        return int(k[0]), int(k[1]), int(k[2]), int(k[3])
+
+
+def grow_rect(cells: FreeCells, rect, limit: float | None = None) -> np.ndarray:
+    """A maximal free rectangle containing the free rectangle ``rect`` (module docstring).
+
+    Args:
+        cells: the grid's :class:`FreeCells`.
+        rect: (4,) [m] ``xmin, ymin, xmax, ymax`` of whole free cells of the grid.
+        limit: [m] no side moves farther than this from where it started (>= 0; None:
+            ``cells.limit``).
+
+    Returns:
+        (4,) [m] the grown rectangle: whole free cells, containing ``rect``; no side can move
+        out by one more cell (unless it reached ``limit`` or the grid's edge).
+
+    Raises:
+        ValueError: ``rect`` is not whole cells of the grid, or holds an occupied cell, or
+            ``limit`` is negative.
+    """
+    limit = cells.limit if limit is None else limit
+    if not (np.isfinite(limit) and limit >= 0):
+        raise ValueError(f"limit must be finite and >= 0 [m], got {limit!r}")
+    i0, j0, i1, j1 = cells.cells_of(rect)
+    if cells.occupied_in(i0, j0, i1, j1):
+        raise ValueError(f"rect {np.asarray(rect, dtype=float).tolist()}: holds occupied cells; only a free rectangle grows")
+    ny, nx = cells.shape
+    steps = int(np.floor(limit / cells.resolution + 1e-9))
+    lo_i, lo_j, hi_i, hi_j = max(0, i0 - steps), max(0, j0 - steps), min(ny, i1 + steps), min(nx, j1 + steps)
+    moved = True
+    while moved:
+        moved = False
+        if j0 > lo_j and not cells.occupied_in(i0, j0 - 1, i1, j0):
+            j0 -= 1
+            moved = True
+        if j1 < hi_j and not cells.occupied_in(i0, j1, i1, j1 + 1):
+            j1 += 1
+            moved = True
+        if i0 > lo_i and not cells.occupied_in(i0 - 1, j0, i0, j1):
+            i0 -= 1
+            moved = True
+        if i1 < hi_i and not cells.occupied_in(i1, j0, i1 + 1, j1):
+            i1 += 1
+            moved = True
+    h = cells.resolution
+    ox, oy = cells.origin
+    return np.array([ox + h * j0, oy + h * i0, ox + h * j1, oy + h * i1])

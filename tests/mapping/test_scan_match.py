@@ -1,0 +1,125 @@
+"""Scan matching: known rotations matched back, ambiguity flagged, failed matches refused;
+the likelihood field's per-cell mean point; the cost's minimum."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from _mapping_reference import room_scan
+from sanav_mj.mapping.occupancy import grid_shape
+from sanav_mj.mapping.scan_match import LikelihoodField, ScanMatchConfig, ScanMatcher, scan_points
+
+ANGLES = np.linspace(-0.75 * np.pi, 0.75 * np.pi, 541)  # the packaged lidar's fan
+H = 0.05
+
+
+def _world(pose, pts):
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    return np.stack([c * pts[:, 0] - s * pts[:, 1] + pose[0], s * pts[:, 0] + c * pts[:, 1] + pose[1]], axis=1)
+
+
+def _field(box, pose, bounds, cfg=ScanMatchConfig()):
+    """The field of one noise-free scan of an axis-aligned room ``box`` taken at ``pose``."""
+    b = np.asarray(bounds, dtype=float)
+    f = LikelihoodField(grid_shape(b, H), b[:2], H, cfg.sigma, cfg.radius_cells)
+    r, hit = room_scan(pose, ANGLES, box, 10.0)
+    pts, _ = scan_points(r, hit, ANGLES)
+    f.add_points(_world(pose, pts))
+    return f
+
+
+@pytest.mark.parametrize("dyaw", [0.03, -0.045, 0.05])
+@pytest.mark.parametrize("shift", [(0.0, 0.0), (0.03, -0.02)])
+def test_room_scan_rotated_by_a_known_yaw_is_matched_back(dyaw, shift):
+    """The map: one scan of a 6 m x 4 m room from (2, 1.5, 0.3). The scan: the same room from
+    a pose turned by ``dyaw`` and moved by ``shift``; the prior is the unturned, unmoved
+    pose. The match recovers the true pose to within half the correlative search's steps
+    (yaw_step / 2, half a cell), and says ok."""
+    box = [0.0, 0.0, 6.0, 4.0]
+    cfg = ScanMatchConfig()
+    f = _field(box, (2.0, 1.5, 0.3), [-0.5, -0.5, 6.5, 4.5], cfg)
+    true = np.array([2.0 + shift[0], 1.5 + shift[1], 0.3 + dyaw])
+    r, hit = room_scan(true, ANGLES, box, 10.0)
+    pts, normals = scan_points(r, hit, ANGLES, max_points=cfg.max_points)
+    res = ScanMatcher(f, cfg).match(np.array([2.0, 1.5, 0.3]), pts, normals)
+    assert res.ok and res.status == "ok"
+    assert abs(res.pose[2] - true[2]) <= cfg.yaw_step / 2
+    assert np.hypot(*(res.pose[:2] - true[:2])) <= H / 2
+    assert res.inliers >= cfg.min_inliers and res.rms <= cfg.max_rms
+
+
+def test_corridor_along_its_axis_is_flagged_ambiguous_and_keeps_the_prior_there():
+    """Two parallel walls 2 m apart, longer than the range: nothing fixes the position along
+    them. The match says ambiguous (smallest information eigenvalue 0: no return constrains
+    x) and leaves x at the prior, while y and the yaw are matched."""
+    box = [-50.0, -1.0, 50.0, 1.0]
+    cfg = ScanMatchConfig()
+    f = _field(box, (0.0, 0.0, 0.0), [-8.0, -1.5, 8.0, 1.5], cfg)
+    true = np.array([0.3, 0.02, 0.02])
+    r, hit = room_scan(true, ANGLES, box, 10.0)
+    pts, normals = scan_points(r, hit, ANGLES, max_points=cfg.max_points)
+    res = ScanMatcher(f, cfg).match(np.zeros(3), pts, normals)
+    assert not res.ok and res.status == "ambiguous"
+    assert res.eig[0] < cfg.min_eig
+    assert abs(res.pose[0]) < 1e-3  # along the corridor: the prior
+    assert abs(res.pose[1] - true[1]) <= H / 2 and abs(res.pose[2] - true[2]) <= cfg.yaw_step / 2
+
+
+def test_scan_of_another_room_is_refused():
+    """A scan of a 3 m x 3 m room taken at a yaw 0.7 rad from the prior's (far outside the
+    search window) matched against the map of the 6 m x 4 m room: refused."""
+    f = _field([0.0, 0.0, 6.0, 4.0], (2.0, 1.5, 0.3), [-0.5, -0.5, 6.5, 4.5])
+    r, hit = room_scan((1.5, 1.0, 1.0), ANGLES, [0.0, 0.0, 3.0, 3.0], 10.0)
+    pts, normals = scan_points(r, hit, ANGLES, max_points=100)
+    res = ScanMatcher(f).match(np.array([2.0, 1.5, 0.3]), pts, normals)
+    assert not res.ok and res.status in ("poor", "few_points")
+
+
+def test_empty_field_returns_the_prior():
+    f = LikelihoodField((10, 10), (0.0, 0.0), H, 0.05, 2)
+    pts = np.array([[1.0, 0.0], [1.0, 0.1]])
+    res = ScanMatcher(f).match(np.array([0.1, 0.2, 0.3]), pts, np.array([[1.0, 0.0], [1.0, 0.0]]))
+    assert res.status == "empty" and not res.ok
+    assert np.array_equal(res.pose, [0.1, 0.2, 0.3])
+
+
+def test_field_point_is_the_mean_of_the_returns_in_the_cell():
+    f = LikelihoodField((10, 10), (0.0, 0.0), H, 0.05, 2)
+    assert f.add_points(np.array([[0.21, 0.31], [0.24, 0.34]])) == 1  # both in cell (6, 4)
+    assert f.add_points(np.array([[0.225, 0.325]])) == 0  # same cell, no new one
+    q, d2 = f.correspond(np.array([[0.225, 0.325], [0.45, 0.45]]))
+    # mean of the three returns: (0.225, 0.325) up to the summation's rounding
+    assert np.allclose(q[0], [0.225, 0.325], rtol=0, atol=4 * np.finfo(float).eps)
+    assert d2[0] <= 8 * np.finfo(float).eps and math.isinf(d2[1])  # (0.45, 0.45): out of reach
+    with pytest.raises(ValueError, match="normals"):
+        ScanMatcher(f).match(np.zeros(3), np.zeros((2, 2)), np.zeros((3, 2)))
+
+
+def test_cost_is_lowest_at_the_true_pose():
+    box = [0.0, 0.0, 6.0, 4.0]
+    f = _field(box, (2.0, 1.5, 0.3), [-0.5, -0.5, 6.5, 4.5])
+    m = ScanMatcher(f)
+    r, hit = room_scan((2.0, 1.5, 0.3), ANGLES, box, 10.0)
+    pts, normals = scan_points(r, hit, ANGLES, max_points=100)
+    c0 = m.cost(np.array([2.0, 1.5, 0.3]), pts, normals)
+    for off in ([0.02, 0, 0], [0, -0.02, 0], [0, 0, 0.01]):
+        assert m.cost(np.array([2.0, 1.5, 0.3]) + off, pts, normals) > c0 + 10
+    res = m.match(np.array([2.01, 1.5, 0.3]), pts, normals, check=np.array([2.0, 1.5, 0.3]))
+    assert res.check_delta <= 11.34  # the true pose passes the consistency test
+
+
+def test_scan_points_drop_returns_without_a_surface():
+    """Returns at a depth jump (an edge) or without both neighbours get no normal; on a flat
+    wall the normal is the wall's."""
+    angles = np.linspace(-0.5, 0.5, 41)
+    r = 2.0 / np.cos(angles)  # a wall at x = 2
+    hit = np.ones(41, dtype=bool)
+    hit[20] = False
+    pts, normals = scan_points(r, hit, angles, stencil=3)
+    assert len(pts) == 41 - 6 - 3  # 3 at each end, beam 20 and the two whose chord ends there
+    assert np.allclose(np.abs(normals[:, 0]), 1.0, atol=1e-12) and np.allclose(pts[:, 0], 2.0, atol=1e-12)
+    with pytest.raises(ValueError, match="ScanMatchConfig.yaw_step"):
+        ScanMatchConfig(yaw_step=0.0)
