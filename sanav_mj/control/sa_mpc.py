@@ -528,12 +528,12 @@ class SAMPC(TrackingMPC):
 
     def _progress(self, pos: np.ndarray) -> int:
         """Index of the reference sample nearest ``pos`` (2,) in the window ahead of the last
-        one; ``"discs"``: nearest the pose ``pos`` (3,) in disc-centre distance
+        one; a pose route: nearest the pose ``pos`` (3,) in disc-centre distance
         ``|dp|^2 + (sweep dyaw)^2`` (a reference that turns on the spot holds its position)."""
         k = len(self.ref_states)
         lo = self._ref_index
         hi = min(k, lo + (self.config.reference_window or self.N) + 1)
-        sweep = self.discs.sweep if self.discs is not None and pos.shape[0] > 2 else None
+        sweep = self.discs.sweep if self.disc_chains is not None and pos.shape[0] > 2 else None
         i = _nearest_sample(self.ref_states, lo, hi, pos, sweep, self._stops)
         self._ref_index = i
         return i
@@ -546,7 +546,7 @@ class SAMPC(TrackingMPC):
         within pi of the measured yaw (the reference yaw is unwrapped, the measured one is
         not), which makes the yaw error the wrapped one.
         """
-        i = self._progress(pose[:2] if self.discs is None else pose[:3])
+        i = self._progress(pose[:2] if self.disc_chains is None else pose[:3])
         k = len(self.ref_states)
         idx, held = _horizon_indices(i, self.N, k, self._stops)
         xr = self.ref_states[idx].copy()

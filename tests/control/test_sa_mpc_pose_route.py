@@ -65,18 +65,22 @@ def test_repeated_areas_take_the_next_occurrence():
 
 
 def test_progress_follows_a_turn_on_the_spot():
-    """A reference turning on the spot holds its position: the discs mode finds the sample
-    of the measured yaw; by position alone (the disc mode's rule) it stays at the first."""
+    """A reference turning on the spot holds its position: a pose route's progress finds the
+    sample of the measured yaw; by position alone (every other plan's rule) it stays at the first."""
     areas = make_areas(RECTS)
     yaw = np.linspace(0.0, math.pi / 2, 8)
     states = np.column_stack([np.full(8, 0.5), np.full(8, 0.5), yaw])
-    plan = _plan(np.vstack([states, [[0.5, 0.9, math.pi / 2]]]), [0] * 9, [0])
+    plan = _plan(np.vstack([states, [[0.5, 0.9, math.pi / 2]]]), [0] * 9, [0], ([0], [0], [0]))  # a pose route
     ctl = SAMPC(ROBOT, areas, plan, DISCS, footprint=FP)
     ctl.reset(np.array([0.5, 0.5, 0.0]), progress=0)
     assert ctl._progress(np.array([0.5, 0.5, yaw[5] + 0.01])) == 5
     disc = SAMPC(ROBOT, areas, plan, MPCConfig(box_margin=0.0))
     disc.reset(np.array([0.5, 0.5, 0.0]), progress=0)
     assert disc._progress(np.array([0.5, 0.5])) == 0
+    corridor = SAMPC(ROBOT, areas, _plan(plan.reference.states, [0] * 9, [0]), DISCS, footprint=FP)
+    corridor.reset(np.array([0.5, 0.5, 0.0]), progress=0)
+    corridor.reference(np.array([0.5, 0.5, yaw[5] + 0.01]))
+    assert corridor.progress_index == 0
 
 
 def test_config_rejects_an_unknown_route():
@@ -84,7 +88,7 @@ def test_config_rejects_an_unknown_route():
 
     with pytest.raises(ValueError, match="footprint_route"):
         MPCConfig(footprint_route="lattice")
-    assert MPCConfig().footprint_route == "pose"
+    assert MPCConfig().footprint_route == "corridor"
 
 
 def test_member_chain_must_overlap():

@@ -13,7 +13,7 @@ from sanav_mj.mapping.occupancy import OccupancyGrid
 from sanav_mj.planning.reference import Plan, Reference
 from sanav_mj.scene import load_scenario
 
-DISCS = ControllerSpec("sa-mpc", replace(MPCConfig(), footprint="discs"))
+DISCS = ControllerSpec("sa-mpc", replace(MPCConfig(), footprint="discs", footprint_route="pose"))
 
 
 def _areas(rects):
@@ -53,5 +53,5 @@ def test_no_pose_path_is_a_clean_no_path_and_a_wide_corner_gives_a_route():
     # other modes, and a failed corridor plan, pass through untouched
     plan = _corridor_plan(goal)
     assert footprint_route_plan(plan, wide, _grid(50, 52), sc, start) is plan
-    corridor = ControllerSpec("sa-mpc", replace(MPCConfig(), footprint="discs", footprint_route="corridor"))
+    corridor = ControllerSpec("sa-mpc", replace(MPCConfig(), footprint="discs"))  # the default route
     assert footprint_route_plan(plan, wide, _grid(50, 52), sc, start, corridor) is plan
