@@ -141,7 +141,8 @@ def cmd_closed_loop(args) -> int:
         given = {k: v for k, v in (("footprint_discs", args.discs), ("footprint_margin", args.margin),
                                    ("footprint_narrow_penalty", args.narrow_penalty),
                                    ("footprint_refine", args.refine), ("footprint_refine_width", args.refine_width),
-                                   ("footprint_grow", args.grow), ("footprint_grow_tighten", args.grow_tighten))
+                                   ("footprint_grow", args.grow), ("footprint_grow_tighten", args.grow_tighten),
+                                   ("footprint_route", args.route), ("box_margin", args.box_margin))
                  if v is not None}
         spec = ControllerSpec("sa-mpc", replace(ControllerSpec().sa_mpc, footprint="discs", **given))
         mpc = spec.sa_mpc
@@ -221,6 +222,11 @@ def main(argv: list[str] | None = None) -> int:
                         "and the disc centres in the MPC (MPCConfig.footprint)")
     c.add_argument("--discs", type=int, default=None, help="discs of the cover (--footprint discs; default MPCConfig's)")
     c.add_argument("--seeds", type=int, nargs="+", default=[0])
+    c.add_argument("--route", choices=("pose", "corridor"), default=None,
+                   help="discs mode: corridor and reference from the pose search or the corridor planner "
+                        "(MPCConfig.footprint_route; default: the config's)")
+    c.add_argument("--box-margin", type=float, default=None,
+                   help="[m] discs mode: MPCConfig.box_margin (default: the config's)")
     c.add_argument("--narrow-penalty", type=float, default=None,
                    help="[m] discs mode: corridor weight added per edge through a place too narrow to turn")
     c.add_argument("--resolution", type=float, default=0.05)

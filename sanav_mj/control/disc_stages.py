@@ -9,6 +9,19 @@ in the last: one convex box for all of them could never pass an L-turn of a stri
 than the disc spacing), the row bounds in the OCP's order, the margins, the braking
 fallback's clearance and where the robot may turn on the spot. :class:`StallEscape` gives
 the escape warm starts of a stalled plan (see its docstring).
+
+**Pose route** (a plan from :mod:`sanav_mj.planning.pose_reference`, ``Plan.disc_corridors``
+set): each disc centre has its own chain of member boxes (safe areas and portal bridges,
+:func:`member_chain_of`) that the reference's disc centre walks; the rows are the same (each
+centre in a shrunk box of its chain, consecutive boxes overlapping, every box inside the
+safe areas), so SA-MPC's safety argument holds per disc. The reference's yaw is the
+route's, so SA-MPC does not retarget it to the exit of the area; the progress is found in
+disc-centre distance (a turn on the spot holds the position), and the horizon is held at
+the reference's next stop (``Reference.stops``: a cusp or a turn on the spot,
+:func:`next_stop`) until the robot is within ``STOP_REACHED_M`` of it, so the plan does not
+blend the motions before and after it (the robot turned early at such places and stalled:
+barn_0052). J_SA's slots are the areas all discs' assignments span, all or none
+(:func:`sa_params_of_ids`).
 """
 
 from __future__ import annotations
@@ -27,6 +40,66 @@ from sanav_mj.control.stages import (
     relax_boxes,
     stage_boxes,
 )
+
+def member_chain_of(areas, members: np.ndarray, margin: float) -> CorridorChain:
+    """The :class:`CorridorChain` of a pose route's per-disc member sequence (``Plan.disc_corridors``).
+
+    Args:
+        areas: the safe areas (rects, edges).
+        members: (L,) int indices into :func:`sanav_mj.planning.pose_search.member_boxes`
+            (area ``r`` for ``r < R``, else the bridge across edge ``r - R``).
+        margin: [m] each stay / advance box is shrunk by this (``box_margin``).
+
+    Raises:
+        ValueError: an index out of range, or consecutive members that do not overlap with
+            positive area (the chain's contract).
+    """
+    from sanav_mj.planning.pose_search import member_boxes
+
+    from sanav_mj.control.stages import box_intersection, shrink_box
+
+    allb = member_boxes(areas, 0.0)
+    m = np.asarray(members, dtype=int).ravel()
+    if m.size == 0 or m.min() < 0 or m.max() >= len(allb):
+        raise ValueError(f"disc_corridors: expected member indices in [0, {len(allb)}), got {m.tolist()}")
+    boxes = allb[m]
+    inter = box_intersection(boxes[:-1], boxes[1:])
+    if np.any(inter[:, 2:] - inter[:, :2] <= 1e-9):
+        raise ValueError(f"disc_corridors: consecutive member boxes must overlap, got members {m.tolist()}")
+    R = len(areas.rects)
+    edges = np.asarray(areas.edges, dtype=int).reshape(-1, 2)
+    pairs = np.array([(i, i) if i < R else tuple(edges[i - R]) for i in m], dtype=int).reshape(-1, 2)
+    stay = shrink_box(boxes, margin)
+    adv = np.empty_like(boxes)
+    adv[0] = stay[0]
+    adv[1:] = shrink_box(inter, margin)
+    return CorridorChain(boxes, pairs, stay, adv)
+
+
+def next_stop(stops: np.ndarray | None, i: int) -> int | None:
+    """The first of the reference's ``stops`` (S,) int (increasing) after sample ``i``; None
+    when there is none or ``stops`` is None."""
+    if stops is None:
+        return None
+    j = int(np.searchsorted(stops, i, side="right"))
+    return int(stops[j]) if j < len(stops) else None
+
+
+def sa_params_of_ids(rects: np.ndarray, ids: list[int], slots: int, q_sa: np.ndarray, margin: float) -> np.ndarray:
+    """J_SA slot parameters (6 * slots,) for the safe areas ``ids`` (shrunk by ``margin`` [m],
+    priorities ``q_sa``), all or none: no slot is active when there are more areas than
+    slots (see :func:`~sanav_mj.control.stages.safe_area_params`)."""
+    from sanav_mj.control.stages import shrink_box
+
+    if len(ids) > slots:
+        ids = []
+    theta = np.zeros((slots, 6))
+    theta[: len(ids), :4] = shrink_box(np.asarray(rects, float)[ids], margin)
+    theta[: len(ids), 4] = q_sa[: len(ids)]
+    theta[: len(ids), 5] = 1.0
+    theta[len(ids):, 2:4] = 1.0
+    return theta.ravel()
+
 
 #: steps at rest before an escape guess is tried (see :class:`StallEscape`).
 STALL_STEPS = 3
@@ -73,14 +146,27 @@ class DiscCover:
         """(K, D, 2) [m] disc centres of the states ``xs`` (K, 3)."""
         return disc_centres(xs, self.offsets)
 
-    def stages(self, chain: CorridorChain, xs: np.ndarray, s_prev: np.ndarray | None,
+    def per_disc(self, chain) -> list[CorridorChain]:
+        """The chain of each disc: ``chain`` itself when it is a list (one per disc), else the
+        one chain D times."""
+        if isinstance(chain, (list, tuple)):
+            if len(chain) != len(self.offsets):
+                raise ValueError(f"chain: expected one corridor chain per disc ({len(self.offsets)}), got {len(chain)}")
+            return list(chain)
+        return [chain] * len(self.offsets)
+
+    def stages(self, chain, xs: np.ndarray, s_prev: np.ndarray | None,
                tol: float) -> tuple[np.ndarray, np.ndarray, float]:
         """Per disc centre of the states ``xs`` (N+1, 3): assignments (D, N+1) (each anchored
         on its previous one, ``s_prev`` (D, N+1) or None), stage boxes (D, N+1, 4) [m] relaxed
-        around its stage-0 centre, and the largest excursion [m] of a stage-0 centre."""
+        around its stage-0 centre, and the largest excursion [m] of a stage-0 centre.
+        ``chain``: one :class:`CorridorChain` for every disc, or a list of one per disc (a
+        pose route's per-disc corridors, ``Plan.disc_corridors``)."""
         pts = self.centres(xs)
+        chains = self.per_disc(chain)
         ss, bs, exc = [], [], 0.0
         for d in range(pts.shape[1]):
+            chain = chains[d]
             cand = first_candidates(len(chain), None if s_prev is None else s_prev[d])
             s = assign_stages(chain, pts[:, d], cand, tol=tol)
             b, e = relax_boxes(stage_boxes(chain, s), pts[0, d])
@@ -100,10 +186,24 @@ class DiscCover:
         pts = self.centres(xs)
         return np.min([box_slack(pts[:, d], bs[d]) for d in range(pts.shape[1])], axis=0)
 
-    def clearance(self, chain: CorridorChain, xs: np.ndarray) -> np.ndarray:
-        """(P,) [m] of the states (P, 3): the worst disc centre's largest slack over the chain's members."""
+    def clearance(self, chain, xs: np.ndarray) -> np.ndarray:
+        """(P,) [m] of the states (P, 3): the worst disc centre's largest slack over the
+        chain's members (``chain`` as in :meth:`stages`)."""
         pts = self.centres(xs)
-        return np.min([chain_slack(chain, pts[:, d]) for d in range(pts.shape[1])], axis=0)
+        chains = self.per_disc(chain)
+        return np.min([chain_slack(chains[d], pts[:, d]) for d in range(pts.shape[1])], axis=0)
+
+    @staticmethod
+    def area_ids(chains: list[CorridorChain], ss: np.ndarray) -> list[int]:
+        """Distinct safe-area indices of the members each disc's assignment ``ss`` (D, N+1)
+        spans on its own chain, in order of first appearance (the J_SA candidates)."""
+        ids: list[int] = []
+        for chain, s in zip(chains, ss):
+            for pair in chain.rect_pair[int(s[0]): int(s[-1]) + 1]:
+                for r in pair:
+                    if int(r) not in ids:
+                        ids.append(int(r))
+        return ids
 
     def turn_allowed(self, chain: CorridorChain, x0: np.ndarray) -> bool:
         """Whether the circle of radius :attr:`sweep` about the position of ``x0`` (3,) fits in

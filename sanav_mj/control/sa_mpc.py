@@ -20,7 +20,7 @@ import numpy as np
 
 from sanav_mj.control.adaptation import PlantAdaptation
 from sanav_mj.control.config import MPCConfig
-from sanav_mj.control.disc_stages import DiscCover, StallEscape
+from sanav_mj.control.disc_stages import DiscCover, StallEscape, member_chain_of, next_stop, sa_params_of_ids
 from sanav_mj.control.prediction import PredictionMonitor
 from sanav_mj.control.problem import build_tracking_ocp
 from sanav_mj.control.stages import (
@@ -42,6 +42,10 @@ from sanav_mj.planning.reference import Plan, Reference
 from sanav_mj.scene import RobotParams
 
 __all__ = ["SAMPC", "MPCConfig", "StepInfo", "SafeAreaPenalty"]
+
+#: [m] disc-centre distance (position and sweep x yaw) within which the robot has reached a
+#: stop of a pose route's reference (see :meth:`SAMPC.reference`).
+STOP_REACHED_M = 0.02
 
 
 def _resample(ref: Reference, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -66,8 +70,73 @@ def _plan_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
     and the chain index (2 x corridor position, -1 off the corridor) of each sample's area."""
     chain = CorridorChain.build(areas, plan.corridor, box_margin)
     states, inputs, ref_area = _resample(plan.reference, dt)
-    pos = {int(a): 2 * i for i, a in enumerate(np.asarray(plan.corridor, int))}
-    return chain, states, inputs, np.array([pos.get(int(a), -1) for a in ref_area], dtype=int)
+    corridor = np.asarray(plan.corridor, int)
+    if len(set(corridor.tolist())) == corridor.size:
+        pos = {int(a): 2 * i for i, a in enumerate(corridor)}
+        return chain, states, inputs, np.array([pos.get(int(a), -1) for a in ref_area], dtype=int)
+    # an area repeats (a pose route that backs up): each sample takes the first occurrence
+    # of its area at or after the previous sample's position
+    out, j = np.full(len(ref_area), -1, dtype=int), 0
+    for k, a in enumerate(np.asarray(ref_area, int)):
+        hit = np.flatnonzero(corridor[j:] == a)
+        if hit.size:
+            j += int(hit[0])
+            out[k] = 2 * j
+    return chain, states, inputs, out
+
+
+def _disc_constraints(ctl: SAMPC, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray, guess: np.ndarray) -> Constraints:
+    """:meth:`SAMPC.constrain` in ``"discs"`` mode: per-disc stages; exit targets and J_SA
+    slots of the chain, or for a pose route (one chain per disc) the planned targets and the
+    areas every disc's assignment spans (:mod:`sanav_mj.control.disc_stages`)."""
+    ss, bs, excursion = ctl.discs.stages(ctl._chains(), guess, ctl._s_prev_d, ctl._check_tol)
+    c = ctl.discs.centre
+    if ctl.disc_chains is None:
+        xr, ur = exit_targets(ctl.chain, ctl._ref_chain[ctl._horizon_idx], x_ref, u_ref, ss[c], x0[:2], float(x0[2]))
+        theta = ctl._sa_params(np.array([ss[:, 0].min(), ss[:, -1].max()]))
+    else:  # a pose route: its reference walks every disc's chain; targets stay as planned
+        xr, ur = x_ref, u_ref
+        theta = sa_params_of_ids(ctl._rects, DiscCover.area_ids(ctl.disc_chains, ss), ctl.penalty.n_slots,
+                                 ctl._q_sa, ctl.config.box_margin)
+    return Constraints(*DiscCover.bounds(bs), theta, xr, ur, excursion, (ss[c], bs[c], ss, bs))
+
+
+def _pose_route_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
+    """A pose route's stops (S,) int at period ``dt`` [s] and one chain per disc; (None,
+    None) for other plans (the horizon never holds; one chain for all discs)."""
+    st, dc = plan.reference.stops, getattr(plan, "disc_corridors", None)
+    stops = None if st is None else np.unique(np.rint(np.asarray(st, float) * plan.reference.dt / dt).astype(int))
+    return stops, (None if dc is None else [member_chain_of(areas, c, box_margin) for c in dc])
+
+
+def _nearest_sample(ref_states: np.ndarray, lo: int, hi: int, pos: np.ndarray, sweep: float | None,
+                    stops: np.ndarray | None) -> int:
+    """Index of the reference sample in ``[lo, hi)`` nearest ``pos`` (2,) [m]; with ``sweep``
+    [m], nearest the pose ``pos`` (3,) in disc-centre distance ``|dp|^2 + (sweep dyaw)^2``;
+    with ``stops``, not past the next stop, and the stop itself once within
+    :data:`STOP_REACHED_M` of it."""
+    stop = next_stop(stops, lo)
+    if stop is not None:
+        hi = min(hi, stop + 1)
+    seg = ref_states[lo:hi, :2] - pos[:2]
+    d2 = np.einsum("ij,ij->i", seg, seg)
+    if sweep is not None:
+        dyaw = (ref_states[lo:hi, 2] - pos[2] + np.pi) % (2 * np.pi) - np.pi
+        d2 = d2 + (sweep * dyaw) ** 2
+    i = lo + int(np.argmin(d2))
+    if stop is not None and i < stop < hi and d2[stop - lo] < STOP_REACHED_M**2:
+        i = stop  # arrived at the stop: the motion after it comes into view
+    return i
+
+
+def _horizon_indices(i: int, n: int, k: int, stops: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Reference sample indices (n+1,) of the horizon from sample ``i`` of ``k`` (the last
+    held) and which are held at the next stop (n+1,) bool (their inputs are zero)."""
+    idx = np.minimum(np.arange(i, i + n + 1), k - 1)
+    stop = next_stop(stops, i)
+    if stop is None:
+        return idx, np.zeros(idx.size, dtype=bool)
+    return np.minimum(idx, stop), np.arange(i, i + n + 1) >= stop
 
 
 @dataclass(frozen=True)
@@ -113,6 +182,8 @@ class SAMPC(TrackingMPC):
     each centre with its own stage assignment and boxes in a map inflated by the disc radius
     (see :meth:`constrain`, :meth:`turn_allowed`); docs/results.md ("Tight spaces") gives
     what it measured.
+
+    **Pose route** (``Plan.disc_corridors`` set): see :mod:`sanav_mj.control.disc_stages`.
 
     Each step: update the actuation monitor with the measured velocity, filter the measured
     pose with the measured velocity, predict the state
@@ -333,6 +404,7 @@ class SAMPC(TrackingMPC):
         self.areas, self._rects, self.plan = areas, np.asarray(areas.rects, dtype=float), plan
         self.chain, self.ref_states, self.ref_inputs, self._ref_chain = _plan_tables(areas, plan, box_margin, dt)
         self._sa_cache: dict[tuple[int, int], np.ndarray] = {}
+        self._stops, self.disc_chains = _pose_route_tables(areas, plan, box_margin, dt)
 
     def replace_plan(self, areas: SafeAreas, plan: Plan) -> None:
         """Follow a new corridor and reference (a successful plan on ``areas`` starting at the
@@ -388,12 +460,11 @@ class SAMPC(TrackingMPC):
                                   float(x0[2]))
             return Constraints(boxes_c[1:, :2].ravel(), boxes_c[1:, 2:].ravel(), self._sa_params(s), xr, ur,
                                excursion, (s, boxes_c))
-        ss, bs, excursion = self.discs.stages(self.chain, guess, self._s_prev_d, self._check_tol)
-        c = self.discs.centre
-        xr, ur = exit_targets(self.chain, self._ref_chain[self._horizon_idx], x_ref, u_ref, ss[c], x0[:2],
-                              float(x0[2]))
-        key = np.array([ss[:, 0].min(), ss[:, -1].max()])
-        return Constraints(*DiscCover.bounds(bs), self._sa_params(key), xr, ur, excursion, (ss[c], bs[c], ss, bs))
+        return _disc_constraints(self, x0, x_ref, u_ref, guess)
+
+    def _chains(self):
+        """The chain(s) of the disc rows: one per disc for a pose route, else the corridor's."""
+        return self.chain if self.disc_chains is None else self.disc_chains
 
     def _guess_inputs(self) -> np.ndarray:
         """The warm start; in ``"discs"`` mode an escape guess once stalled (:class:`StallEscape`)."""
@@ -417,7 +488,7 @@ class SAMPC(TrackingMPC):
 
     def state_clearance(self, xs: np.ndarray) -> np.ndarray:
         """(P,) [m] slack of the states (P, 3) over the chain's members (``"discs"``: the worst centre's)."""
-        return chain_slack(self.chain, xs[:, :2]) if self.discs is None else self.discs.clearance(self.chain, xs)
+        return chain_slack(self.chain, xs[:, :2]) if self.discs is None else self.discs.clearance(self._chains(), xs)
 
     def _pose(self, x0, con, u_guess, guess):
         prob = super()._pose(x0, con, u_guess, guess)
@@ -434,12 +505,13 @@ class SAMPC(TrackingMPC):
             margins = np.concatenate(([box_slack(x0[None, :2], boxes[:1])[0]], box_slack(xs[1:, :2], boxes[1:])))
         else:
             margins = self.discs.margins(np.vstack((x0[None], xs[1:])), context[3])
-        return stage_rect_ids(self.chain, self._rects, s, xs[:, :2]), margins
+        chain = self.chain if self.disc_chains is None else self.disc_chains[self.discs.centre]
+        return stage_rect_ids(chain, self._rects, s, xs[:, :2]), margins
 
     def turn_context(self, x0: np.ndarray, xs: np.ndarray):
         """Stage assignment and boxes of an opening-turn plan."""
         if self.discs is not None:
-            ss, bs, _ = self.discs.stages(self.chain, np.vstack((x0[None], xs[1:])), self._s_prev_d, self._check_tol)
+            ss, bs, _ = self.discs.stages(self._chains(), np.vstack((x0[None], xs[1:])), self._s_prev_d, self._check_tol)
             return ss[self.discs.centre], bs[self.discs.centre], ss, bs
         s = assign_stages(self.chain, xs[:, :2], first_candidates(len(self.chain), self._s_prev), tol=self._check_tol)
         boxes, _ = relax_boxes(stage_boxes(self.chain, s), x0[:2])
@@ -458,13 +530,14 @@ class SAMPC(TrackingMPC):
     # ---------------------------------------------------------------- pieces of a step
 
     def _progress(self, pos: np.ndarray) -> int:
-        """Index of the reference sample nearest ``pos`` in the window ahead of the last one."""
+        """Index of the reference sample nearest ``pos`` (2,) in the window ahead of the last
+        one; a pose route: nearest the pose ``pos`` (3,) in disc-centre distance
+        ``|dp|^2 + (sweep dyaw)^2`` (a reference that turns on the spot holds its position)."""
         k = len(self.ref_states)
-        win = self.config.reference_window or self.N
         lo = self._ref_index
-        hi = min(k, lo + win + 1)
-        seg = self.ref_states[lo:hi, :2] - pos
-        i = lo + int(np.argmin(np.einsum("ij,ij->i", seg, seg)))
+        hi = min(k, lo + (self.config.reference_window or self.N) + 1)
+        sweep = self.discs.sweep if self.disc_chains is not None and pos.shape[0] > 2 else None
+        i = _nearest_sample(self.ref_states, lo, hi, pos, sweep, self._stops)
         self._ref_index = i
         return i
 
@@ -476,12 +549,12 @@ class SAMPC(TrackingMPC):
         within pi of the measured yaw (the reference yaw is unwrapped, the measured one is
         not), which makes the yaw error the wrapped one.
         """
-        i = self._progress(pose[:2])
+        i = self._progress(pose[:2] if self.disc_chains is None else pose[:3])
         k = len(self.ref_states)
-        idx = np.minimum(np.arange(i, i + self.N + 1), k - 1)
+        idx, held = _horizon_indices(i, self.N, k, self._stops)
         xr = self.ref_states[idx].copy()
         ur = self.ref_inputs[idx[:-1]].copy()
-        ur[idx[:-1] >= k - 1] = 0.0
+        ur[(idx[:-1] >= k - 1) | held[:-1]] = 0.0
         xr[:, 2] += 2 * np.pi * np.round((pose[2] - xr[0, 2]) / (2 * np.pi))
         self._horizon_idx = idx
         return xr, ur

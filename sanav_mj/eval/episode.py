@@ -176,6 +176,54 @@ def planning_areas(areas: SafeAreas, scenario: Scenario, spec: ControllerSpec = 
     return penalise_narrow(areas, width, mpc.footprint_narrow_penalty)
 
 
+def footprint_route_plan(plan: Plan, areas: SafeAreas, grid: OccupancyGrid, scenario: Scenario, start: np.ndarray,
+                         spec: ControllerSpec = ControllerSpec()) -> Plan:
+    """``"discs"`` mode with ``footprint_route="pose"``: the plan from a search over poses
+    whose disc centres stay in the safe areas (:mod:`sanav_mj.planning.pose_search`,
+    :func:`sanav_mj.planning.pose_reference.route_plan`), to the goal ``plan`` uses; a
+    ``no_path`` plan when no such pose path exists; ``plan`` itself in every other mode, when
+    ``plan`` failed, or when the found path's corridor does not cover its discs
+    (``info["pose_route_fallback"]`` says why). The reference's caps are the planner's
+    (:func:`planner_config`): 0.8 of the MPC's speed, yaw-rate and rate bounds, backwards
+    0.8 of its reversing speed.
+
+    Args:
+        plan: the corridor plan from ``start``.
+        areas: the safe areas it was planned on (unpenalised).
+        grid: the map's grid (the search lattice is its cell centres).
+        scenario: the scenario (robot and footprint).
+        start: (3,) [m, m, rad] start pose.
+        spec: the controller spec.
+    """
+    mpc = spec.sa_mpc
+    if mpc.footprint != "discs" or mpc.footprint_route != "pose" or not plan.ok:
+        return plan
+    from dataclasses import replace as _replace
+
+    from sanav_mj.footprint import robot_footprint
+    from sanav_mj.planning.pose_reference import route_plan
+    from sanav_mj.planning.pose_search import PoseSearchConfig, search_poses
+
+    offsets, _ = robot_footprint(scenario.model).discs(mpc.footprint_discs)
+    sweep = float(np.hypot(*offsets.T).max())
+    res = search_poses(areas, grid.origin, grid.occupied.shape, grid.resolution, offsets, sweep,
+                       np.asarray(start, float), plan.goal, PoseSearchConfig(margin=mpc.box_margin))
+    if res.route is None:
+        return _replace(plan, ok=False, reason="no_path", corridor=np.zeros(0, dtype=np.int64),
+                        waypoints=np.zeros((0, 2)), path=np.zeros((0, 2)), smoothed=np.zeros((0, 2)), reference=None,
+                        info=dict(plan.info, detail=res.detail, pose_search_ms=res.time_ms))
+    pc = planner_config(scenario.robot, spec)
+    lim = mpc.limits(scenario.robot)
+    new, why = route_plan(areas, res.route, plan.goal, offsets, pc.dt, pc.speed_fraction * scenario.robot.v_max,
+                          pc.speed_fraction * abs(lim.v_min), pc.yaw_rate_fraction * scenario.robot.w_max,
+                          pc.accel_fraction * scenario.robot.a_max, pc.yaw_rate_fraction * lim.alpha_max,
+                          pc.lateral_accel, info={"corridor_plan_ms": plan.info.get("timing_ms", {}).get("total")},
+                          raster=res.raster, margin=mpc.box_margin)
+    if new is None:
+        return _replace(plan, info=dict(plan.info, pose_route_fallback=why, pose_search_ms=res.time_ms))
+    return new
+
+
 def prepare(
     spec: str | Path | Scenario,
     resolution: float = 0.05,
@@ -206,6 +254,7 @@ def prepare(
     pose = scenario.start if start is None else np.asarray(start, dtype=float)
     plan = make_plan(planning_areas(m.areas, scenario, controller), pose, scenario.goal, scenario.robot,
                      planner_config(scenario.robot, controller))
+    plan = footprint_route_plan(plan, m.areas, m.grid, scenario, pose, controller)
     timing = dict(m.timing_ms)
     timing["plan"] = (time.perf_counter() - t0) * 1e3
     timing["total"] = timing.get("total", 0.0) + timing["plan"]
@@ -564,6 +613,7 @@ def _replan(prep: Prepared, start: np.ndarray, spec: ControllerSpec) -> Prepared
     robot = prep.scenario.robot
     plan = make_plan(planning_areas(prep.areas, prep.scenario, spec), start, prep.scenario.goal, robot,
                      planner_config(robot, spec))
+    plan = footprint_route_plan(plan, prep.areas, prep.grid, prep.scenario, start, spec)
     timing = dict(prep.timing_ms)
     timing["plan"] = (time.perf_counter() - t0) * 1e3
     return Prepared(prep.scenario, prep.map, plan, timing)

@@ -21,12 +21,17 @@ class Reference:
             the previous sample's); consecutive samples share an area or lie in consecutive
             corridor areas, except that a corridor area the reference crosses in less than
             one step can be stepped over (no sample falls inside it).
+        stops: None, or (S,) int increasing sample indices where the reference comes to rest
+            between motions of different kinds (a pose route's cusps: forward / backward /
+            turning on the spot); SA-MPC's horizon does not look past the next stop until
+            the robot has reached it.
     """
 
     dt: float
     states: np.ndarray
     inputs: np.ndarray
     area: np.ndarray
+    stops: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.states.shape[0])
@@ -48,6 +53,11 @@ class Plan:
         info: diagnostics (plain numbers and strings): e.g. the smoothing weight finally
             used, how often it was halved, the length of path replaced by the interpolated
             polyline, path length and duration, per-stage wall times.
+        disc_corridors: None, or (a pose route's plan, :func:`sanav_mj.planning.
+            pose_reference.route_plan`) one (L_d,) int chain per disc of the footprint's
+            cover: indices into :func:`sanav_mj.planning.pose_search.member_boxes` (the
+            safe areas, then one portal bridge per edge of ``SafeAreas.edges``) of the
+            member boxes that disc's centre walks, in order.
     """
 
     ok: bool
@@ -59,3 +69,4 @@ class Plan:
     smoothed: np.ndarray
     reference: Reference | None
     info: dict[str, Any] = field(default_factory=dict)
+    disc_corridors: tuple[np.ndarray, ...] | None = None
