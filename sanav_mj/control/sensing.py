@@ -58,6 +58,7 @@ import numpy as np
 
 from sanav_mj.control.base import Command, Observation
 from sanav_mj.control.config import MPCConfig
+from sanav_mj.control.localisation import ScanLocaliser
 from sanav_mj.control.sa_mpc import SAMPC
 from sanav_mj.footprint import Footprint
 from sanav_mj.mapping.safe_areas import SafeAreas
@@ -290,28 +291,8 @@ class SensingSAMPC:
         planner: the planner settings (matched to the MPC).
         config: sensing-loop settings.
 
-    Localisation (``config.localise``): the pose is predicted from the previous estimate and
-    the measured body velocities (``Observation.velocity``, wheel odometry / gyro: a
-    unicycle step over the elapsed time at the velocity measured now), and each scan is matched against the
-    map's returns so far around that prediction (:meth:`SensedMap.match`). A match (trusted,
-    or ambiguous: then the unconstrained directions stay at the prediction) gives the
-    estimate; a failed one keeps the prediction (and, with ``skip_unmatched``, the scan is
-    not added to the map). The episode starts at the pose given to
-    :meth:`reset` (the start pose, as the known-map mode plans from it). The measured pose
-    (``Observation.pose``, with the ``--mismatch`` noise) enters each match as an absolute
-    prior (:meth:`SensedMap.match` ``anchor``) whose standard deviation is learnt online
-    from the measured displacement between steps minus the odometry's (variance
-    ``2 var(noise) + var(odometry error)``; a running mean with ``meas_sigma0`` as two
-    samples, then an exponential average of weight ``meas_forget``; floored at
-    ``meas_floor``; the controller is not told the noise): an exact measurement pins the
-    estimate (and so the map) to the world, a noisy one only slowly pulls the map frame
-    back from drift; without a match the prediction and the
-    measurement are blended by their variances (``odometry_sigma`` against the learnt one).
-    When the match is ``ok`` (or ambiguous while the learnt noise is below
-    ``precise_meas``) and the measured pose explains the scan as well (the scan's cost at it
-    exceeds the match's by at most ``consistent_chi2``), the measured pose is kept as the
-    estimate (status ``"measured"``): with an exact measurement the map is built as without
-    localisation.
+    Localisation (``config.localise``): :class:`~sanav_mj.control.localisation.ScanLocaliser`
+    (odometry prediction corrected by matching each scan against the map, see its docstring).
 
     Attributes:
         name: ``"sa-mpc"``; dt: [s] control period; needs_ranges: False.
@@ -383,13 +364,7 @@ class SensingSAMPC:
         if self.config.background_replan and self._worker is None:
             self._start_worker()  # here, before the loop
         self.map = SensedMap(self.bounds, self.inflation, self.sensor_offset, self.config.map)
-        self.estimate = np.asarray(pose, dtype=float).reshape(3).copy()
-        self._odo: tuple[float, np.ndarray] | None = None  # (t, velocity) of the last step
-        self._add_scan = True
-        self._meas_var = np.square(np.asarray(self.config.meas_sigma0, dtype=float))  # [m^2, rad^2]
-        self._last_meas: np.ndarray | None = None  # the measured pose of the last step
-        self._meas_n = 0  # samples of the measurement noise so far
-        self.match_log: list[tuple[str, np.ndarray]] = []
+        self.localiser = ScanLocaliser(self.config, pose)
         self._areas: SafeAreas | None = None
         self._boxes = np.zeros((0, 4), dtype=np.int64)
         self.plan_boxes = self._boxes
@@ -415,6 +390,16 @@ class SensingSAMPC:
         return self._areas
 
     @property
+    def estimate(self) -> np.ndarray:
+        """(3,) [m, m, rad] the current pose estimate (:attr:`ScanLocaliser.estimate`)."""
+        return self.localiser.estimate
+
+    @property
+    def match_log(self) -> list[tuple[str, np.ndarray]]:
+        """Per step, the scan match status and the estimate after it (:attr:`ScanLocaliser.match_log`)."""
+        return self.localiser.match_log
+
+    @property
     def replans(self) -> int:
         """Plans made after the first one in this episode."""
         return max(0, sum(r.replan is not None for r in self.records) - 1)
@@ -429,7 +414,7 @@ class SensingSAMPC:
     def step(self, obs: Observation) -> Command:
         """Map update, replan when needed, SA-MPC solve (see the module docstring)."""
         t_loc = time.perf_counter()
-        pose = self._localise(obs)
+        pose, add_scan = self.localiser.localise(obs, self.map)
         loc_ms = (time.perf_counter() - t_loc) * 1e3
         if self.config.localise and self.config.controller_pose == "estimate":
             obs = replace(obs, pose=pose)
@@ -449,7 +434,7 @@ class SensingSAMPC:
                 changed, self._route_dirty = fp.changed, self._route_dirty or fp.route_changed
             k = self.config.beam_stride
             # the route areas are needed only to plan: their snapshot is taken in _compute
-            if self._add_scan:
+            if add_scan:
                 up = self.map.integrate(pose, obs.scan.ranges[::k], obs.scan.hit[::k], obs.scan.angles[::k],
                                         route_snapshot=False)
                 changed = up.changed or changed
@@ -518,79 +503,6 @@ class SensingSAMPC:
         if self._worker is not None:
             self._worker.close()
             self._worker = None
-
-    def _localise(self, obs: Observation) -> np.ndarray:
-        """The pose this step works with: the measured one, or (``localise``) the odometry
-        prediction corrected by matching the scan (class docstring); sets whether the scan
-        is added to the map."""
-        self._add_scan = True
-        if not self.config.localise:
-            self.match_log.append(("none", np.asarray(obs.pose, dtype=float).reshape(3).copy()))
-            return np.asarray(obs.pose, dtype=float).reshape(3)
-        est = self.estimate.copy()
-        odo = None  # odometry displacement since the last step (3,) [m, m, rad]
-        vel = np.asarray(obs.velocity, dtype=float).reshape(-1) if obs.velocity is not None else None
-        if vel is not None and vel.shape == (2,) and np.all(np.isfinite(vel)):
-            if self._odo is not None:
-                # the wheel servos reach a new set-point within a few ms: the velocity measured
-                # at the end of the interval is its average far better than the trapezoid
-                # (complex, seed 0: 0.007 vs 0.011 rad rms yaw error per 0.1 s step)
-                dt = float(obs.t) - self._odo[0]
-                v, w = vel
-                th_mid = est[2] + 0.5 * w * dt
-                odo = np.array([v * dt * math.cos(th_mid), v * dt * math.sin(th_mid), w * dt])
-                est = est + odo
-            self._odo = (float(obs.t), vel)
-        meas = np.asarray(obs.pose, dtype=float).reshape(3)
-        have_meas = bool(np.all(np.isfinite(meas)))
-        sig = np.sqrt(self._meas_var)
-        status = "none"
-        matched = False
-        if obs.scan is not None:
-            res = self.map.match(est, obs.scan.ranges, obs.scan.hit, obs.scan.angles,
-                                 meas if have_meas else None, (float(sig[0]), float(sig[1])),
-                                 check=meas if have_meas else None)
-            status = res.status
-            if res.ok or status == "ambiguous":
-                # ambiguous: the directions the scan constrains are matched, the others stay
-                # at the prediction (the prior's regularisation); that is the best estimate
-                est, matched = res.pose, True
-                precise = bool(np.all(sig <= np.asarray(self.config.precise_meas)))
-                if (res.ok or precise) and res.check_delta <= self.config.consistent_chi2:
-                    # the measured pose explains the scan as well as the match: keep it
-                    est, status = meas.copy(), "measured"
-            elif status != "empty":
-                self._add_scan = not self.config.skip_unmatched
-        if have_meas:
-            d = meas - est
-            d[2] = (d[2] + math.pi) % (2.0 * math.pi) - math.pi
-            if not matched:
-                # no match: blend prediction and measurement by their variances
-                so = self.config.odometry_sigma
-                k = np.array([so[0] ** 2, so[0] ** 2, so[1] ** 2])
-                k = k / (k + self._meas_var[[0, 0, 1]])
-                est = est + k * d
-            if odo is not None and self._last_meas is not None:
-                # the measurement noise, learnt online (the controller is not told it): the
-                # measured displacement minus the odometry's is n_k - n_(k-1) - e_k (n: white
-                # measurement noise, e: odometry error), of variance 2 var(n) + var(e);
-                # exponential average, floored. Independent of the estimate and the map.
-                c = meas - self._last_meas - odo
-                c[2] = (c[2] + math.pi) % (2.0 * math.pi) - math.pi
-                so = self.config.odometry_sigma
-                new_var = np.array([0.25 * (c[0] ** 2 + c[1] ** 2) - 0.5 * so[0] ** 2,
-                                    0.5 * c[2] ** 2 - 0.5 * so[1] ** 2])
-                # running mean (meas_sigma0 counting as 2 samples) until it weighs less than
-                # meas_forget, exponential average after that
-                self._meas_n += 1
-                a = max(self.config.meas_forget, 1.0 / (self._meas_n + 2))
-                self._meas_var = np.maximum((1 - a) * self._meas_var + a * new_var,
-                                            np.square(self.config.meas_floor))
-            self._last_meas = meas.copy()
-        est[2] = (est[2] + math.pi) % (2.0 * math.pi) - math.pi
-        self.estimate = est
-        self.match_log.append((status, est.copy()))
-        return est.copy()
 
     def _clear_body(self, pose: np.ndarray) -> SensedUpdate:
         """Observe free the cells the robot's body covers (config ``footprint``, shrunk by the
