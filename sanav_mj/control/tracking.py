@@ -43,6 +43,7 @@ from sanav_mj.control.base import Command, Observation
 from sanav_mj.control.config import InputLimits, TrackingConfig
 from sanav_mj.control.problem import TrackingOCP, shift_bound_multipliers, shift_inputs, shift_multipliers
 from sanav_mj.control.solver import SolveResult
+from sanav_mj.control.reach import unreachable_stage
 from sanav_mj.control.unicycle import rollout_np
 
 
@@ -314,6 +315,8 @@ class TrackingMPC:
         self._step_index = 0
         self._turning = opening_turn and self.config.turn_in_place is not None
         self.stats = MPCStats()
+        #: solves skipped this episode because :func:`unreachable_stage` proved them infeasible
+        self.unreachable = 0
         self.last_failure_reason: str | None = None
 
     @property
@@ -362,6 +365,12 @@ class TrackingMPC:
         prob = self._pose(x0, con, u_guess, guess)
         if self.failure_injector is not None and self.failure_injector(k_step):
             return self._fallback(x0, t0, con.context, "injected", prob)
+        if self.config.reach_check and len(con.pos_lb) == 2 * self.N:
+            # positions p_1..p_N as the position rows: skip a solve that cannot be accepted
+            k = unreachable_stage(x0, prob.z_lb, prob.z_ub, con.pos_lb, con.pos_ub, self.dt, self._check_tol)
+            if k is not None:
+                self.unreachable += 1
+                return self._fallback(x0, t0, con.context, f"unreachable:stage={k}", prob)
         res, status, reason = self.solve(prob, x0)
         if status is None:
             return self._fallback(x0, t0, con.context, reason, prob)
