@@ -36,12 +36,12 @@ def _cos_range(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _product(a_lo, a_hi, b_lo, b_hi) -> tuple[np.ndarray, np.ndarray]:
     """Elementwise interval product ``[a_lo, a_hi] * [b_lo, b_hi]``."""
-    p = np.stack((a_lo * b_lo, a_lo * b_hi, a_hi * b_lo, a_hi * b_hi))
-    return p.min(axis=0), p.max(axis=0)
+    p, q, r, t = a_lo * b_lo, a_lo * b_hi, a_hi * b_lo, a_hi * b_hi
+    return np.minimum(np.minimum(p, q), np.minimum(r, t)), np.maximum(np.maximum(p, q), np.maximum(r, t))
 
 
 def position_intervals(x0: np.ndarray, z_lb: np.ndarray, z_ub: np.ndarray, dt: float,
-                       frame: float) -> tuple[np.ndarray, np.ndarray]:
+                       frame) -> tuple[np.ndarray, np.ndarray]:
     """Bounds of the positions ``p_1..p_N`` reachable from ``x0`` under the input bounds.
 
     Args:
@@ -49,32 +49,38 @@ def position_intervals(x0: np.ndarray, z_lb: np.ndarray, z_ub: np.ndarray, dt: f
         z_lb, z_ub: (2N,) [m/s, rad/s] lower and upper input bounds ``(v_0, w_0, v_1, ...)``.
         dt: [s] step length.
         frame: [rad] angle of the axes the positions are expressed on (0: world axes; the
-            initial yaw: along and across the heading), origin at ``x0``'s position.
+            initial yaw: along and across the heading), origin at ``x0``'s position; a float
+            or an (F,) array of angles.
 
     Returns:
-        lo, hi: (N, 2) [m] each position ``p_k - p_0`` rotated by ``-frame`` lies in
-        ``[lo[k-1], hi[k-1]]`` (componentwise) for every input sequence within the bounds.
+        lo, hi: (N, 2) [m] (or (F, N, 2) for an array ``frame``): each position
+        ``p_k - p_0`` rotated by ``-frame`` lies in ``[lo[k-1], hi[k-1]]`` (componentwise)
+        for every input sequence within the bounds.
     """
     lb = np.asarray(z_lb, dtype=float).reshape(-1, 2)
     ub = np.asarray(z_ub, dtype=float).reshape(-1, 2)
     wl, wh = lb[:, 1] * dt, ub[:, 1] * dt
     # heading of each chord relative to the frame: theta_k + w_k dt / 2
-    before_lo = np.concatenate(([0.0], np.cumsum(wl)[:-1]))
-    before_hi = np.concatenate(([0.0], np.cumsum(wh)[:-1]))
-    base = float(x0[2]) - frame
-    m_lo, m_hi = base + before_lo + 0.5 * wl, base + before_hi + 0.5 * wh
+    cl, ch = np.cumsum(wl), np.cumsum(wh)
+    rel_lo, rel_hi = cl - 0.5 * wl, ch - 0.5 * wh
+    frames = np.asarray(frame, dtype=float)
+    base = (float(x0[2]) - frames.reshape(-1, 1))
     # chord length factor sinc(w dt / 2) in [sinc(max |w| dt / 2), 1] (decreasing in |w|)
     w_abs = np.maximum(np.abs(lb[:, 1]), np.abs(ub[:, 1]))
-    w_in = (lb[:, 1] <= 0.0) & (ub[:, 1] >= 0.0)
-    w_small = np.where(w_in, 0.0, np.minimum(np.abs(lb[:, 1]), np.abs(ub[:, 1])))
+    w_small = np.where((lb[:, 1] <= 0.0) & (ub[:, 1] >= 0.0), 0.0,
+                       np.minimum(np.abs(lb[:, 1]), np.abs(ub[:, 1])))
     s_lo, s_hi = sinc_half(w_abs, dt), sinc_half(w_small, dt)
     ds_lo, ds_hi = _product(lb[:, 0] * dt, ub[:, 0] * dt, s_lo, s_hi)
+    # cos on the first axis, sin(a) = cos(a - pi/2) on the second: (F, 2, N)
+    shift = np.array([0.0, 0.5 * np.pi]).reshape(1, 2, 1)
+    m_lo = (base + rel_lo)[:, None, :] - shift
+    m_hi = (base + rel_hi)[:, None, :] - shift
     c_lo, c_hi = _cos_range(m_lo, m_hi)
-    s_lo_, s_hi_ = _cos_range(m_lo - 0.5 * np.pi, m_hi - 0.5 * np.pi)  # sin(a) = cos(a - pi/2)
-    x_lo, x_hi = _product(ds_lo, ds_hi, c_lo, c_hi)
-    y_lo, y_hi = _product(ds_lo, ds_hi, s_lo_, s_hi_)
-    lo = np.stack((np.cumsum(x_lo), np.cumsum(y_lo)), axis=1)
-    hi = np.stack((np.cumsum(x_hi), np.cumsum(y_hi)), axis=1)
+    p_lo, p_hi = _product(ds_lo, ds_hi, c_lo, c_hi)
+    lo = np.cumsum(p_lo, axis=2).transpose(0, 2, 1)
+    hi = np.cumsum(p_hi, axis=2).transpose(0, 2, 1)
+    if frames.ndim == 0:
+        return lo[0], hi[0]
     return lo, hi
 
 
@@ -108,17 +114,18 @@ def unreachable_stage(x0: np.ndarray, z_lb: np.ndarray, z_ub: np.ndarray, box_lb
     # rounding of the sums: a few ulps of the largest coordinate per step
     eps = 1e-9 * (1.0 + float(np.max(np.abs(np.concatenate((b_lo.ravel(), b_hi.ravel(), x0[:2]))))))
     p0 = x0[:2]
-    lo, hi = position_intervals(x0, z_lb, z_ub, dt, 0.0)
+    th = float(x0[2])
+    (lo, lo_h), (hi, hi_h) = position_intervals(x0, z_lb, z_ub, dt, np.array([0.0, th]))
     bad = np.any((lo + p0 > b_hi + eps) | (hi + p0 < b_lo - eps), axis=1)
     # the same on the heading's axes: project the boxes' corners
-    th = float(x0[2])
     c, s = np.cos(th), np.sin(th)
-    lo_h, hi_h = position_intervals(x0, z_lb, z_ub, dt, th)
-    cx = np.stack((b_lo[:, 0], b_hi[:, 0], b_lo[:, 0], b_hi[:, 0]), axis=1) - p0[0]
-    cy = np.stack((b_lo[:, 1], b_lo[:, 1], b_hi[:, 1], b_hi[:, 1]), axis=1) - p0[1]
-    along, across = c * cx + s * cy, -s * cx + c * cy
-    proj_lo = np.stack((along.min(axis=1), across.min(axis=1)), axis=1)
-    proj_hi = np.stack((along.max(axis=1), across.max(axis=1)), axis=1)
+    dx_lo, dx_hi = b_lo[:, 0] - p0[0], b_hi[:, 0] - p0[0]
+    dy_lo, dy_hi = b_lo[:, 1] - p0[1], b_hi[:, 1] - p0[1]
+    # a linear function's range over a box: its ends at the corners picked by the signs
+    ax, ay = (c * dx_lo, c * dx_hi), (s * dy_lo, s * dy_hi)
+    bx, by = (-s * dx_lo, -s * dx_hi), (c * dy_lo, c * dy_hi)
+    proj_lo = np.stack((np.minimum(*ax) + np.minimum(*ay), np.minimum(*bx) + np.minimum(*by)), axis=1)
+    proj_hi = np.stack((np.maximum(*ax) + np.maximum(*ay), np.maximum(*bx) + np.maximum(*by)), axis=1)
     bad |= np.any((lo_h > proj_hi + eps) | (hi_h < proj_lo - eps), axis=1)
     k = np.flatnonzero(bad)
     return int(k[0]) + 1 if k.size else None
