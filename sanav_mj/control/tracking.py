@@ -155,6 +155,18 @@ def turn_profile(err: float, w0: float, a: float, w_max: float, n: int, dt: floa
     return out
 
 
+def _unreachable(ctl, x0: np.ndarray, con: Constraints, prob: Problem) -> int | None:
+    """The ``reach_check`` of a :class:`TrackingMPC` step: the first stage (1..N) whose box
+    no plan within the input bounds reaches (:func:`unreachable_stage`; the solve could not
+    be accepted, ``ctl.unreachable`` counts it), or None. Only when the position rows are
+    the positions ``p_1..p_N`` (2N rows); else None."""
+    if len(con.pos_lb) != 2 * ctl.N:
+        return None
+    k = unreachable_stage(x0, prob.z_lb, prob.z_ub, con.pos_lb, con.pos_ub, ctl.dt, ctl._check_tol)
+    ctl.unreachable += k is not None
+    return k
+
+
 class TrackingMPC:
     """The shared tracking-MPC core (see the module docstring); implements the Controller protocol.
 
@@ -315,8 +327,7 @@ class TrackingMPC:
         self._step_index = 0
         self._turning = opening_turn and self.config.turn_in_place is not None
         self.stats = MPCStats()
-        #: solves skipped this episode because :func:`unreachable_stage` proved them infeasible
-        self.unreachable = 0
+        self.unreachable = 0  # solves skipped: proved infeasible (_unreachable)
         self.last_failure_reason: str | None = None
 
     @property
@@ -365,12 +376,8 @@ class TrackingMPC:
         prob = self._pose(x0, con, u_guess, guess)
         if self.failure_injector is not None and self.failure_injector(k_step):
             return self._fallback(x0, t0, con.context, "injected", prob)
-        if self.config.reach_check and len(con.pos_lb) == 2 * self.N:
-            # positions p_1..p_N as the position rows: skip a solve that cannot be accepted
-            k = unreachable_stage(x0, prob.z_lb, prob.z_ub, con.pos_lb, con.pos_ub, self.dt, self._check_tol)
-            if k is not None:
-                self.unreachable += 1
-                return self._fallback(x0, t0, con.context, f"unreachable:stage={k}", prob)
+        if self.config.reach_check and (k := _unreachable(self, x0, con, prob)) is not None:
+            return self._fallback(x0, t0, con.context, f"unreachable:stage={k}", prob)
         res, status, reason = self.solve(prob, x0)
         if status is None:
             return self._fallback(x0, t0, con.context, reason, prob)
