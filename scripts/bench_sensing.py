@@ -18,7 +18,8 @@ per step that planned, handed a background plan over or requested one, and the c
 time of each plan after the first wherever it ran; then plans per run, plans adopted from
 the background worker, the first plan's time and the controller's construction time
 (``prepare_ms``) as means. ``--components`` adds the per-step split (map update, planning,
-SA-MPC step, rest) and the fallback steps per run; ``--realtime`` paces each run at the
+SA-MPC step, rest), the fallback steps per run (and how many of them the reach check
+answered without a solve) and the steps over 10 ms per run; ``--realtime`` paces each run at the
 control period, as on a robot (a background plan then has a real period's idle time);
 ``--new-config KEY=VALUE`` / ``--old-config`` set :class:`SensingConfig` fields of each
 version's controller (e.g. ``background_replan=true``). With ``--against TREE`` (a source
@@ -137,6 +138,8 @@ print(json.dumps({"pipeline": list(tr.pipeline_ms), "map": out.sensed.map_update
                   "rest_step": [p - (r.map_ms or 0.0) - r.replan_ms - s
                                 for p, s, r in zip(tr.pipeline_ms, tr.solve_ms, rec)],
                   "limit": [sum(s.startswith("fallback") for s in tr.status)],
+                  # solves the reach check skipped (proved infeasible; 0 in trees without it)
+                  "skipped": [getattr(ctrl.mpc, "unreachable", 0) if ctrl.mpc is not None else 0],
                   "doc": out.document}))
 """
 
@@ -151,7 +154,7 @@ def _strip_ms(x):
 
 
 _KEYS = ("pipeline", "map", "solve", "nosolve", "replan", "plan", "plans", "deferred", "first", "prepare",
-         "map_step", "replan_step", "rest_step", "limit")
+         "map_step", "replan_step", "rest_step", "limit", "skipped")
 
 
 def loop(names: list[str], seed: int, against: str | None, repeat: int, new_config: dict | None = None,
@@ -208,7 +211,8 @@ def loop(names: list[str], seed: int, against: str | None, repeat: int, new_conf
 
                 print(f"{'':10s} {ver:3s}  per step:  map update {g(a['map_step'])}  replan {g(a['replan_step'])}  "
                       f"SA-MPC step {g(a['solve'])}  rest {g(a['rest_step'])}  fallbacks/run "
-                      f"{np.mean(a['limit']):.1f}")
+                      f"{np.mean(a['limit']):.1f} (solve skipped {np.mean(a['skipped']):.1f})  "
+                      f"steps > 10 ms/run {sum(v > 10.0 for v in a['pipeline']) / repeat:.1f}")
         repeatable = all(d == docs[v][0] for v in trees for d in docs[v])
         same = repeatable and all(docs[v][0] == docs["new"][0] for v in trees)
         print(f"{name:10s} run JSON (without *_ms): {'repeatable' if repeatable else 'NOT REPEATABLE'} within each "

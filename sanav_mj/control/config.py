@@ -89,6 +89,13 @@ class TrackingConfig:
             at most this (must be below ``turn_in_place``).
         cache_dir: folder of compiled solver code; None -> ``$SANAV_MJ_CACHE`` or
             ``~/.cache/sanav-mj``.
+        reach_check: before each solve, bound the positions reachable within the input
+            bounds (:func:`~sanav_mj.control.reach.unreachable_stage`); when a stage box
+            cannot be reached the problem is proved infeasible and the step takes the
+            fallback without a solve (the solve would have been rejected: same command,
+            without the 10-40 ms of a full ALM budget). Only for position rows that are
+            the positions (not disc centres). Default False (known-map runs unchanged);
+            the lidar mode turns it on (``SensingConfig.reach_check``).
     """
 
     horizon: int = 20
@@ -114,8 +121,11 @@ class TrackingConfig:
     turn_in_place: float | None = 1.0
     turn_exit: float = 0.3
     cache_dir: str | None = None
+    reach_check: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.reach_check, bool):
+            raise ValueError(f"{self._name}.reach_check must be True or False, got {self.reach_check!r}")
         if not (isinstance(self.horizon, int) and 2 <= self.horizon <= 200):
             raise ValueError(f"{self._name}.horizon must be an integer in [2, 200], got {self.horizon!r}")
         self._positive("dt", self.dt)

@@ -133,6 +133,13 @@ class SensingConfig:
         odometry_sigma: ([m], [rad]) standard deviation of the odometry prediction's error
             per control step (measured 0.007 rad rms on complex, seed 0), weighing prediction
             against measurement when a scan gives no match.
+        reach_check: turn on the SA-MPC's ``reach_check`` (``MPCConfig.reach_check``):
+            a step whose stage boxes the robot provably cannot stay in (after a ``blocked``
+            replan the new boxes can be shorter than the distance it needs to stop) goes to
+            the braking fallback without running the solver, which would spend its whole
+            ALM budget (10-40 ms) before being rejected. The command is the same as without
+            it (the skipped solve could not have been accepted); only the step time
+            changes (docs/benchmarks.md, "Lidar closed loop per step").
     """
 
     replan_interval: int = 5
@@ -152,6 +159,7 @@ class SensingConfig:
     consistent_chi2: float = 11.34
     odometry_sigma: tuple[float, float] = (0.005, 0.007)
     precise_meas: tuple[float, float] = (0.01, 0.01)
+    reach_check: bool = True
 
     def __post_init__(self) -> None:
         if isinstance(self.replan_interval, bool) or not isinstance(self.replan_interval, int) \
@@ -326,7 +334,7 @@ class SensingSAMPC:
         self.goal = np.asarray(goal, dtype=float).reshape(2)
         self.inflation = float(inflation)
         self.sensor_offset = tuple(float(v) for v in sensor_offset)
-        self.mpc_config = mpc
+        self.mpc_config = replace(mpc, reach_check=True) if config.reach_check and not mpc.reach_check else mpc
         self.planner = planner if planner is not None else PlannerConfig(dt=mpc.dt)
         self.config = config
         self.dt = float(mpc.dt)

@@ -43,6 +43,7 @@ from sanav_mj.control.base import Command, Observation
 from sanav_mj.control.config import InputLimits, TrackingConfig
 from sanav_mj.control.problem import TrackingOCP, shift_bound_multipliers, shift_inputs, shift_multipliers
 from sanav_mj.control.solver import SolveResult
+from sanav_mj.control.reach import unreachable_stage
 from sanav_mj.control.unicycle import rollout_np
 
 
@@ -152,6 +153,18 @@ def turn_profile(err: float, w0: float, a: float, w_max: float, n: int, dt: floa
         out[k, 1] = sgn * w
         rem -= w * dt
     return out
+
+
+def _unreachable(ctl, x0: np.ndarray, con: Constraints, prob: Problem) -> int | None:
+    """The ``reach_check`` of a :class:`TrackingMPC` step: the first stage (1..N) whose box
+    no plan within the input bounds reaches (:func:`unreachable_stage`; the solve could not
+    be accepted, ``ctl.unreachable`` counts it), or None. Only when the position rows are
+    the positions ``p_1..p_N`` (2N rows); else None."""
+    if len(con.pos_lb) != 2 * ctl.N:
+        return None
+    k = unreachable_stage(x0, prob.z_lb, prob.z_ub, con.pos_lb, con.pos_ub, ctl.dt, ctl._check_tol)
+    ctl.unreachable += k is not None
+    return k
 
 
 class TrackingMPC:
@@ -314,6 +327,7 @@ class TrackingMPC:
         self._step_index = 0
         self._turning = opening_turn and self.config.turn_in_place is not None
         self.stats = MPCStats()
+        self.unreachable = 0  # solves skipped: proved infeasible (_unreachable)
         self.last_failure_reason: str | None = None
 
     @property
@@ -362,6 +376,8 @@ class TrackingMPC:
         prob = self._pose(x0, con, u_guess, guess)
         if self.failure_injector is not None and self.failure_injector(k_step):
             return self._fallback(x0, t0, con.context, "injected", prob)
+        if self.config.reach_check and (k := _unreachable(self, x0, con, prob)) is not None:
+            return self._fallback(x0, t0, con.context, f"unreachable:stage={k}", prob)
         res, status, reason = self.solve(prob, x0)
         if status is None:
             return self._fallback(x0, t0, con.context, reason, prob)
