@@ -14,6 +14,7 @@ half-written file: the last rename wins and every process loads a complete libra
 
 from __future__ import annotations
 
+import ctypes
 import hashlib
 import logging
 import os
@@ -142,3 +143,35 @@ def compile_cached(
             raise CompileError(f"compiling {what} with {compiler} failed: {proc.stderr.strip()[:2000]}")
         os.replace(out, target)  # atomic: a concurrent process sees no file or a complete one
     return target, True
+
+
+#: compiler flags of the small C kernels (:func:`load_c_kernel`): IEEE arithmetic, no FMA
+#: contraction, so the kernels give the same bits as their NumPy references.
+KERNEL_FLAGS = ("-O2", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off", "-fno-fast-math")
+
+
+def load_c_kernel(prefix: str, source: str, what: str, disable_env: str) -> ctypes.CDLL | None:
+    """Compile (once, into the shared cache: :func:`compile_cached`) and load a C kernel
+    written as one source string, or None when the environment variable ``disable_env`` is
+    set to anything but ``""`` / ``"0"``, there is no compiler, the compile fails or the
+    cache cannot be written (the caller then uses its NumPy path).
+
+    Args:
+        prefix: the library's file name prefix (``"beams"``, ``"areas"``).
+        source: the C source (compiled with :data:`KERNEL_FLAGS`).
+        what: what is compiled, for the compiler's error message.
+        disable_env: the environment variable that switches the kernel off.
+    """
+    if os.environ.get(disable_env, "") not in ("", "0"):
+        return None
+
+    def write(folder: Path) -> str:
+        src = folder / f"{prefix}.c"
+        src.write_text(source)
+        return str(src)
+
+    try:
+        target, _ = compile_cached(prefix, (source,), write, KERNEL_FLAGS, what)
+        return ctypes.CDLL(str(target))
+    except (NoCompilerError, CompileError, OSError):
+        return None

@@ -26,13 +26,11 @@ None and the caller runs its NumPy code.
 from __future__ import annotations
 
 import ctypes
-import os
-from pathlib import Path
 
 import numpy as np
 
 from sanav_mj.mapping.beam_kernel import NO_KERNEL_ENV, address, buffer_address
-from sanav_mj.native import CompileError, NoCompilerError, compile_cached
+from sanav_mj.native import load_c_kernel
 
 _SOURCE = r"""
 #include <math.h>
@@ -328,16 +326,8 @@ int64_t sanav_snapshot(int64_t cap, const uint8_t *alive, const int64_t *boxes, 
 }
 """
 
-_FLAGS = ("-O2", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off", "-fno-fast-math")
-
 _lib: ctypes.CDLL | None = None
 _tried = False
-
-
-def _write_source(folder: Path) -> str:
-    src = folder / "areas.c"
-    src.write_text(_SOURCE)
-    return str(src)
 
 
 def _load() -> ctypes.CDLL | None:
@@ -346,12 +336,8 @@ def _load() -> ctypes.CDLL | None:
     if _tried:
         return _lib
     _tried = True
-    if os.environ.get(NO_KERNEL_ENV, "") not in ("", "0"):
-        return None
-    try:
-        target, _ = compile_cached("areas", (_SOURCE,), _write_source, _FLAGS, "the safe-area kernel")
-        lib = ctypes.CDLL(str(target))
-    except (NoCompilerError, CompileError, OSError):
+    lib = load_c_kernel("areas", _SOURCE, "the safe-area kernel", NO_KERNEL_ENV)
+    if lib is None:
         return None
     i64, ptr = ctypes.c_int64, ctypes.c_void_p
     lib.sanav_pyramid_add.restype = None

@@ -21,12 +21,10 @@ cells (tested).
 from __future__ import annotations
 
 import ctypes
-import os
-from pathlib import Path
 
 import numpy as np
 
-from sanav_mj.native import CompileError, NoCompilerError, compile_cached
+from sanav_mj.native import load_c_kernel
 
 #: Environment variable: set to ``1`` to use the NumPy traversal even where C compiles.
 NO_KERNEL_ENV = "SANAV_MJ_NO_CKERNEL"
@@ -328,17 +326,8 @@ void sanav_commit(int64_t T, const int64_t *touched, int8_t *mark, float *lo, fl
 }
 """
 
-_FLAGS = ("-O2", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off", "-fno-fast-math")
-
 _lib: ctypes.CDLL | None = None
 _tried = False
-
-
-def _write_source(folder: Path) -> str:
-    """Write the kernel's C source into ``folder``; its path."""
-    src = folder / "beams.c"
-    src.write_text(_SOURCE)
-    return str(src)
 
 
 def _load() -> ctypes.CDLL | None:
@@ -349,12 +338,8 @@ def _load() -> ctypes.CDLL | None:
     if _tried:
         return _lib
     _tried = True
-    if os.environ.get(NO_KERNEL_ENV, "") not in ("", "0"):
-        return None
-    try:
-        target, _ = compile_cached("beams", (_SOURCE,), _write_source, _FLAGS, "the beam traversal kernel")
-        lib = ctypes.CDLL(str(target))
-    except (NoCompilerError, CompileError, OSError):
+    lib = load_c_kernel("beams", _SOURCE, "the beam traversal kernel", NO_KERNEL_ENV)
+    if lib is None:
         return None
     f = lib.sanav_free_cells
     f.restype = ctypes.c_int64
