@@ -249,16 +249,11 @@ def corridor_of_points(areas: SafeAreas, points: np.ndarray) -> np.ndarray | Non
     the module docstring); None when a point lies in no safe area."""
     rects = np.asarray(areas.rects, dtype=float)
     nb = _neighbours(areas)
-    inside = ((points[:, None, 0] >= rects[None, :, 0] - CONTAIN_TOL) & (points[:, None, 0] <= rects[None, :, 2] + CONTAIN_TOL)
-              & (points[:, None, 1] >= rects[None, :, 1] - CONTAIN_TOL) & (points[:, None, 1] <= rects[None, :, 3] + CONTAIN_TOL))
+    inside = _in_boxes(points, rects)
     if not inside.any(axis=1).all():
         return None
-    # run length ahead: how many consecutive points from i on lie in rect r
     P = points.shape[0]
-    run = np.zeros(inside.shape, dtype=np.int32)
-    run[-1] = inside[-1]
-    for i in range(P - 2, -1, -1):
-        run[i] = np.where(inside[i], run[i + 1] + 1, 0)
+    run = _runs_ahead(inside)
     cur = int(np.argmax(run[0]))
     out = [cur]
     for i in range(1, P):
@@ -306,6 +301,16 @@ def _shrink(box: np.ndarray, margin: float) -> np.ndarray:
     return np.concatenate((box[..., :2] + m, box[..., 2:] - m), axis=-1)
 
 
+def _runs_ahead(inside: np.ndarray) -> np.ndarray:
+    """(P, M) int32: how many consecutive points from point p on lie in box m (``inside``
+    (P, M) bool as :func:`_in_boxes` gives)."""
+    run = np.zeros(inside.shape, dtype=np.int32)
+    run[-1] = inside[-1]
+    for i in range(inside.shape[0] - 2, -1, -1):
+        run[i] = np.where(inside[i], run[i + 1] + 1, 0)
+    return run
+
+
 def _in_boxes(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     """(P, M) bool: point p in box m (closed, to 1e-9 m)."""
     return ((points[:, None, 0] >= boxes[None, :, 0] - CONTAIN_TOL) & (points[:, None, 0] <= boxes[None, :, 2] + CONTAIN_TOL)
@@ -338,10 +343,7 @@ def member_chain(members: np.ndarray, points: np.ndarray, margin: float, tol: fl
     P = points.shape[0]
     if not inside.any(axis=1).all():
         return None
-    run = np.zeros(inside.shape, dtype=np.int32)
-    run[-1] = inside[-1]
-    for i in range(P - 2, -1, -1):
-        run[i] = np.where(inside[i], run[i + 1] + 1, 0)
+    run = _runs_ahead(inside)
     cur = int(np.argmax(run[0]))
     out = [cur]
     for i in range(1, P):
