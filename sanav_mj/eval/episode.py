@@ -623,6 +623,10 @@ def _no_path_episode(plant, start: np.ndarray) -> Episode:
     from sanav_mj.sim.runner import EpisodeTrace
 
     plant.reset(start)
+    trace = EpisodeTrace()
+    # the robot stays at its start: the run's smallest clearance is the start's (a number, as
+    # DESIGN.md's run JSON has it, not null)
+    trace.clearance.append(plant.clearance())
     return Episode(
         success=False,
         reason="no_path",
@@ -631,6 +635,6 @@ def _no_path_episode(plant, start: np.ndarray) -> Episode:
         collisions=0,
         solver_failures=0,
         final_pose=plant.pose(),
-        trace=EpisodeTrace(),
+        trace=trace,
         wall_time_s=0.0,
     )
