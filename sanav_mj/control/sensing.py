@@ -59,6 +59,7 @@ import numpy as np
 from sanav_mj.control.base import Command, Observation
 from sanav_mj.control.config import MPCConfig
 from sanav_mj.control.localisation import ScanLocaliser
+from sanav_mj.control.replan import kept_prefix, prefixed_areas
 from sanav_mj.control.sa_mpc import SAMPC
 from sanav_mj.footprint import Footprint
 from sanav_mj.mapping.safe_areas import SafeAreas
@@ -140,6 +141,11 @@ class SensingConfig:
             ALM budget (10-40 ms) before being rejected. The command is the same as without
             it (the skipped solve could not have been accepted); only the step time
             changes (docs/benchmarks.md, "Lidar closed loop per step").
+        keep_rects: a replan in motion keeps the rectangles of the corridor being followed
+            that hold the robot's predicted positions (each re-verified safe in the current
+            map, a partly unsafe one cut to a safe part holding them;
+            :mod:`sanav_mj.control.replan`), so the corridor starts with the boxes the
+            shifted plan lies in; False: the corridor is planned on the current areas alone.
     """
 
     replan_interval: int = 5
@@ -160,6 +166,7 @@ class SensingConfig:
     odometry_sigma: tuple[float, float] = (0.005, 0.007)
     precise_meas: tuple[float, float] = (0.01, 0.01)
     reach_check: bool = True
+    keep_rects: bool = True
 
     def __post_init__(self) -> None:
         if isinstance(self.replan_interval, bool) or not isinstance(self.replan_interval, int) \
@@ -190,6 +197,8 @@ class SensingConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"SensingConfig.{name}: expected a finite number > 0, got {v!r}")
+        if not isinstance(self.keep_rects, bool):
+            raise ValueError(f"SensingConfig.keep_rects: expected True or False, got {self.keep_rects!r}")
         if not isinstance(self.background_replan, bool):
             raise ValueError(f"SensingConfig.background_replan: expected True or False, got {self.background_replan!r}")
 
@@ -383,6 +392,7 @@ class SensingSAMPC:
         self.local_goal: np.ndarray | None = None
         self.records: list[StepRecord] = []
         self.last_scan = None
+        self._predicted: np.ndarray | None = None  # (N+1, 3) the last command's predicted states
         self._since_plan = 0
         self._grown = False
         self._turn_steps = 0
@@ -482,6 +492,7 @@ class SensingSAMPC:
             cmd = self._scan_turn(obs)
         else:
             cmd = self.mpc.step(obs)
+        self._predicted = cmd.predicted
         if request is not None:
             t0 = time.perf_counter()
             if self._worker is None:
@@ -572,11 +583,17 @@ class SensingSAMPC:
     def _plan_inputs(self, pose: np.ndarray, speed: float, reason: str) -> tuple:
         """Everything :meth:`_compute` reads that the control thread changes later (the map
         itself is read only before the next scan is integrated)."""
-        return (pose.copy(), speed, reason, self._areas, self._boxes, self._have_route, self.mpc is not None)
+        kept = None
+        if self.config.keep_rects and self.mpc is not None and not self._mpc_fresh and self._predicted is not None:
+            g = self.map.grid
+            pts = np.vstack([pose[None, :2], self._predicted[1:, :2]])
+            kept = kept_prefix(self._corridor_rects, pts, g.blocked, g.origin, g.resolution)
+        return (pose.copy(), speed, reason, self._areas, self._boxes, self._have_route, self.mpc is not None, kept)
 
     def _compute(self, pose: np.ndarray, speed: float, reason: str, areas: SafeAreas, boxes: np.ndarray,
-                 have_route: bool, moving: bool) -> _Planned | None:
-        """Route (on the route areas) and local corridor (on ``areas``) from ``pose`` (3,)
+                 have_route: bool, moving: bool, kept: np.ndarray | None = None) -> _Planned | None:
+        """Route (on the route areas) and local corridor (on ``areas``, after the ``kept``
+        (K, 4) [m] rectangles of the corridor being followed when given) from ``pose`` (3,)
         [m, m, rad], the reference starting at the measured forward ``speed`` [m/s] (0 before
         the MPC runs, ``moving`` False); None when no local plan exists. Reads the map but
         changes nothing the control thread uses (it may run on the background thread)."""
@@ -594,7 +611,18 @@ class SensingSAMPC:
         target = self._local_goal(route)
         if target is None:
             return None
-        local = make_plan(areas, pose, target, self.robot, self.planner, start_speed=speed if moving else 0.0)
+        v0 = speed if moving else 0.0
+        local = None
+        if kept is not None and len(kept):
+            g = self.map.grid
+            k_areas, k_boxes = prefixed_areas(areas, boxes, kept, g.origin, g.resolution)
+            local = make_plan(k_areas, pose, target, self.robot, self.planner, start_speed=v0)
+            if local.ok and local.reference is not None and len(local.corridor):
+                areas, boxes = k_areas, k_boxes
+            else:
+                local = None
+        if local is None:
+            local = make_plan(areas, pose, target, self.robot, self.planner, start_speed=v0)
         if not local.ok or local.reference is None or len(local.corridor) == 0:
             return None
         return _Planned(local, areas, boxes, route, np.asarray(target, dtype=float), reason,
