@@ -130,8 +130,8 @@ def kept_prefix(corridor_rects: np.ndarray, predicted: np.ndarray, blocked: np.n
             box = _shrunk(blocked, box, seed) if (seed[2:] > seed[:2]).all() else None
             if box is None:
                 break
-        r = np.array([origin[0] + resolution * box[1], origin[1] + resolution * box[0],
-                      origin[0] + resolution * box[3], origin[1] + resolution * box[2]])
+        r = rects[a + k] if ok[k] else np.array([origin[0] + resolution * box[1], origin[1] + resolution * box[0],
+                                                 origin[0] + resolution * box[3], origin[1] + resolution * box[2]])
         if out and _inside(r, out[-1]):
             continue  # adds no room the chain does not have (e.g. the same rectangle again)
         if out and _inside(out[-1], r):
