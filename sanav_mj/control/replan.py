@@ -11,9 +11,10 @@ per-step time goes"). Here the replan keeps them:
 1. :func:`kept_prefix`: the rectangles of the corridor being followed that hold the
    predicted positions of the robot's current plan, from the first to the last, each
    re-verified in the current map: kept as it is while every cell is still safe; a
-   rectangle with unsafe cells is replaced by a safe sub-rectangle holding the predicted
-   positions inside it (grown from their bounding cells within the old rectangle), or,
-   when none exists, the prefix ends before it. Consecutive kept rectangles must overlap
+   rectangle with unsafe cells is replaced by safe sub-rectangles covering the predicted
+   positions inside it in order (each grown within the old rectangle from the cells of the
+   first position the last one misses and of the one before it, so they overlap), and the
+   prefix ends at the first position no safe sub-rectangle can hold. Consecutive kept rectangles must overlap
    or share a boundary segment (as corridor areas do).
 2. :func:`prefixed_areas`: the current safe areas with the kept rectangles placed first
    (so the planner, which starts in the lowest-numbered area holding the start, starts in
@@ -86,6 +87,35 @@ def _shrunk(blocked: np.ndarray, box: np.ndarray, seed: np.ndarray) -> np.ndarra
     return np.rint([g[1], g[0], g[3], g[2]]).astype(np.int64)
 
 
+def _cover(blocked: np.ndarray, box: np.ndarray, pts: np.ndarray, origin: np.ndarray, resolution: float
+           ) -> tuple[list[np.ndarray], bool]:
+    """Safe cell boxes inside ``box`` (4,) ``[i0, j0, i1, j1)`` covering the points ``pts``
+    (M, 2) [m] in order: one box grown from their bounding cells when that holds only safe
+    cells, else each box grown (:func:`_shrunk`) from the cells of the first point
+    the last box misses and of the point before it (so consecutive boxes overlap); and
+    whether every point is covered (False: the cover stops at the first point whose seed
+    holds an unsafe cell)."""
+    c = np.floor((pts - origin) / resolution).astype(np.int64)[:, ::-1]  # (row, column) per point
+    c = np.clip(c, box[:2], box[2:] - 1)
+    whole = _shrunk(blocked, box, np.concatenate([c.min(axis=0), c.max(axis=0) + 1])) if len(c) else None
+    if whole is not None:  # one box holds them all
+        return [whole], True
+    out: list[np.ndarray] = []
+    prev = None
+    for cell in c:
+        if out and (cell >= out[-1][:2]).all() and (cell < out[-1][2:]).all():
+            prev = cell
+            continue
+        lo = cell if prev is None else np.minimum(cell, prev)
+        hi = cell if prev is None else np.maximum(cell, prev)
+        g = _shrunk(blocked, box, np.concatenate([lo, hi + 1]))
+        if g is None:
+            return out, False
+        out.append(g)
+        prev = cell
+    return out, True
+
+
 def kept_prefix(corridor_rects: np.ndarray, predicted: np.ndarray, blocked: np.ndarray, origin,
                 resolution: float) -> np.ndarray:
     """The rectangles of the corridor being followed to keep at a replan (module docstring).
@@ -121,28 +151,23 @@ def kept_prefix(corridor_rects: np.ndarray, predicted: np.ndarray, blocked: np.n
     ok = rects_safe(blocked, cells)
     out: list[np.ndarray] = []
     for k in range(b + 1 - a):
-        box = cells[k]
-        if not ok[k]:
-            mine = pts[inside[:, a + k]]
-            c = np.floor((mine - origin) / resolution).astype(np.int64)  # cells of the points
-            seed = np.array([c[:, 1].min(), c[:, 0].min(), c[:, 1].max() + 1, c[:, 0].max() + 1])
-            seed = np.concatenate([np.maximum(seed[:2], box[:2]), np.minimum(seed[2:], box[2:])])
-            box = _shrunk(blocked, box, seed) if (seed[2:] > seed[:2]).all() else None
-            if box is None:
-                break
-        r = rects[a + k] if ok[k] else np.array([origin[0] + resolution * box[1], origin[1] + resolution * box[0],
-                                                 origin[0] + resolution * box[3], origin[1] + resolution * box[2]])
-        if out and _inside(r, out[-1]):
-            continue  # adds no room the chain does not have (e.g. the same rectangle again)
-        if out and _inside(out[-1], r):
-            out[-1] = r
-            if len(out) > 1 and not _connected(out[-2], r):
-                out.pop()
-                break
-            continue
-        if out and not _connected(out[-1], r):
+        if ok[k]:
+            pieces, whole = [rects[a + k]], True
+        else:
+            boxes, whole = _cover(blocked, cells[k], pts[inside[:, a + k]], origin, resolution)
+            pieces = [np.array([origin[0] + resolution * c[1], origin[1] + resolution * c[0],
+                                origin[0] + resolution * c[3], origin[1] + resolution * c[2]]) for c in boxes]
+        for r in pieces:
+            if out and _inside(r, out[-1]):
+                continue  # adds no room the chain does not have (e.g. the same rectangle again)
+            if out and _inside(out[-1], r):
+                out[-1] = r  # holds the last one, so it meets the one before as that did
+                continue
+            if out and not _connected(out[-1], r):
+                return np.array(out).reshape(-1, 4)
+            out.append(r)
+        if not whole:
             break
-        out.append(r)
     return np.array(out).reshape(-1, 4)
 
 

@@ -68,14 +68,41 @@ def test_an_unsafe_cell_away_from_the_plan_cuts_the_rectangle_to_a_safe_part():
     assert k0[2] == 2.0  # still meets the next rectangle
 
 
+def _covers(r, p):
+    return bool(((p >= r[:2] - 1e-9) & (p <= r[2:] + 1e-9)).all())
+
+
 def test_an_unsafe_cell_on_the_plan_ends_the_prefix_before_it():
     c = _corridor()
+    pts = _pts(1.0, 4.0)  # x = 1.0, 1.27, ..., 3.45, 3.73, 4.0 on y = 0.5
     blocked = np.zeros((20, 100), dtype=np.int32)
     blocked[10, 70] = 1  # (3.5, 0.5): on the predicted path in the third rectangle
-    kept = kept_prefix(c, _pts(1.0, 4.0), blocked, ORIGIN, H)
-    assert np.array_equal(kept, c[:2])
-    blocked[10, 30] = 1  # (1.5, 0.5): in the robot's own rectangle, on its path
-    assert kept_prefix(c, _pts(1.0, 4.0), blocked, ORIGIN, H).shape == (0, 4)
+    kept = kept_prefix(c, pts, blocked, ORIGIN, H)
+    assert np.array_equal(kept[:2], c[:2]) and len(kept) == 3
+    assert rects_safe(blocked, rect_cells(kept, ORIGIN, H)).all()
+    assert _covers(c[2], kept[2][:2]) and _covers(c[2], kept[2][2:])  # a part of the third
+    # the positions before the unsafe cell are held, the one past it is not
+    assert any(_covers(r, pts[9]) for r in kept) and not any(_covers(r, pts[10]) for r in kept)
+    blocked[10, 30] = 1  # (1.5, 0.5): in the robot's own rectangle, on its third position
+    kept = kept_prefix(c, pts, blocked, ORIGIN, H)
+    assert len(kept) == 1 and rects_safe(blocked, rect_cells(kept, ORIGIN, H)).all()
+    assert _covers(kept[0], pts[1]) and not _covers(kept[0], pts[2])
+    blocked[10, 20] = 1  # the robot's own cell: nothing can be kept
+    assert kept_prefix(c, pts, blocked, ORIGIN, H).shape == (0, 4)
+
+
+def test_a_rectangle_cut_across_the_plan_is_covered_by_overlapping_parts():
+    """The case of double_rect, seed 0, step 78: a thin rectangle whose bottom row became unsafe
+    behind the robot, the plan dropping into that row further on: one part cannot hold every
+    position, two overlapping parts do."""
+    blocked = np.zeros((20, 140), dtype=np.int32)
+    c = np.array([[3.0, 0.8, 5.8, 0.95], [5.0, 0.6, 6.2, 1.0]])
+    blocked[16, 74:88] = 1  # row y in [0.8, 0.85), x in [3.7, 4.4)
+    pts = np.column_stack([np.linspace(4.05, 5.87, 20), np.linspace(0.91, 0.68, 20)])
+    kept = kept_prefix(c, pts, blocked, ORIGIN, H)
+    assert np.allclose(kept, [[3.0, 0.85, 5.8, 0.95], [4.4, 0.8, 5.8, 0.95], [5.0, 0.6, 6.2, 1.0]])
+    assert rects_safe(blocked, rect_cells(kept, ORIGIN, H)).all()
+    assert all(any(_covers(r, p) for r in kept) for p in pts)
 
 
 def test_repeated_and_contained_rectangles_are_kept_once():
