@@ -26,6 +26,9 @@ brings a scan (``Observation.scan``):
    cells, and the corridor and reference the MPC follows are planned on the safe areas
    from the measured pose to that local goal (the goal itself when the whole route is in
    safe cells). The MPC's hard constraints and J_SA therefore use observed free space only.
+   In motion the corridor starts with the rectangles of the corridor being followed that
+   hold the robot's predicted positions, each re-verified safe (``SensingConfig.keep_rects``,
+   :mod:`sanav_mj.control.replan`), so the shifted plan still fits the new stage boxes.
 4. **Solve.** The SA-MPC step with the (possibly new) corridor. Its horizon ends at rest
    (terminal stop ``v_{N-1} = 0``, and the speed bounds it implies) with every predicted
    position inside a stage box within the safe areas: each accepted plan is a way to stop
