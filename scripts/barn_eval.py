@@ -222,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
                         "and the disc centres in the MPC (MPCConfig.footprint)")
     c.add_argument("--discs", type=int, default=None, help="discs of the cover (--footprint discs; default MPCConfig's)")
     c.add_argument("--seeds", type=int, nargs="+", default=[0])
-    c.add_argument("--route", choices=("pose", "corridor", "pose_or_corridor"), default=None,
+    c.add_argument("--route", choices=("pose", "corridor"), default=None,
                    help="discs mode: corridor and reference from the pose search or the corridor planner "
                         "(MPCConfig.footprint_route; default: the config's)")
     c.add_argument("--box-margin", type=float, default=None,

@@ -201,7 +201,7 @@ class TrackingConfig:
 #: values of :attr:`MPCConfig.footprint`.
 FOOTPRINT_MODES = ("disc", "discs")
 #: values of :attr:`MPCConfig.footprint_route`.
-FOOTPRINT_ROUTES = ("pose", "corridor", "pose_or_corridor")
+FOOTPRINT_ROUTES = ("pose", "corridor")
 
 
 @dataclass(frozen=True)
@@ -252,9 +252,6 @@ class MPCConfig(TrackingConfig):
             BARN-like worlds (nominal): "pose" with one 5 cm grid 73 / 100 (24 no_path, 3
             stuck), with ``footprint_refine`` 2 65 / 100 (28 no_path, 7 stuck); "corridor"
             with refine 2 76 / 100 (8 no_path, 15 stuck); 0 collisions each.
-            ``"pose_or_corridor"``: the pose route where the pose search finds one, else
-            the corridor route (the search's lattice of 16 headings misses some passages
-            the corridor route drives through).
         footprint_refine: ``"discs"`` mode: the map's cells are refined by this integer
             factor where the free space is narrow (:class:`sanav_mj.mapping.MapConfig`
             ``refine``, :func:`sanav_mj.mapping.refine.refine_narrow`); 1: one grid.

@@ -181,8 +181,7 @@ def footprint_route_plan(plan: Plan, areas: SafeAreas, grid: OccupancyGrid, scen
     """``"discs"`` mode with ``footprint_route="pose"``: the plan from a search over poses
     whose disc centres stay in the safe areas (:mod:`sanav_mj.planning.pose_search`,
     :func:`sanav_mj.planning.pose_reference.route_plan`), to the goal ``plan`` uses; a
-    ``no_path`` plan when no such pose path exists (``"pose_or_corridor"``: ``plan`` itself,
-    ``info["pose_route_fallback"]`` the search's detail); ``plan`` itself in every other mode, when
+    ``no_path`` plan when no such pose path exists; ``plan`` itself in every other mode, when
     ``plan`` failed, or when the found path's corridor does not cover its discs
     (``info["pose_route_fallback"]`` says why). The reference's caps are the planner's
     (:func:`planner_config`): 0.8 of the MPC's speed, yaw-rate and rate bounds, backwards
@@ -197,7 +196,7 @@ def footprint_route_plan(plan: Plan, areas: SafeAreas, grid: OccupancyGrid, scen
         spec: the controller spec.
     """
     mpc = spec.sa_mpc
-    if mpc.footprint != "discs" or mpc.footprint_route not in ("pose", "pose_or_corridor") or not plan.ok:
+    if mpc.footprint != "discs" or mpc.footprint_route != "pose" or not plan.ok:
         return plan
     from dataclasses import replace as _replace
 
@@ -209,8 +208,6 @@ def footprint_route_plan(plan: Plan, areas: SafeAreas, grid: OccupancyGrid, scen
     sweep = float(np.hypot(*offsets.T).max())
     res = search_poses(areas, grid.origin, grid.occupied.shape, grid.resolution, offsets, sweep,
                        np.asarray(start, float), plan.goal, PoseSearchConfig(margin=mpc.box_margin))
-    if res.route is None and mpc.footprint_route == "pose_or_corridor":
-        return _replace(plan, info=dict(plan.info, pose_route_fallback=res.detail, pose_search_ms=res.time_ms))
     if res.route is None:
         return _replace(plan, ok=False, reason="no_path", corridor=np.zeros(0, dtype=np.int64),
                         waypoints=np.zeros((0, 2)), path=np.zeros((0, 2)), smoothed=np.zeros((0, 2)), reference=None,

@@ -55,18 +55,3 @@ def test_no_pose_path_is_a_clean_no_path_and_a_wide_corner_gives_a_route():
     assert footprint_route_plan(plan, wide, _grid(50, 52), sc, start) is plan
     corridor = ControllerSpec("sa-mpc", replace(MPCConfig(), footprint="discs"))  # the default route
     assert footprint_route_plan(plan, wide, _grid(50, 52), sc, start, corridor) is plan
-
-
-def test_pose_or_corridor_falls_back_to_the_corridor_plan_only_without_a_pose_path():
-    sc = load_scenario("u_shape")
-    start = np.array([0.3, 0.5, 0.0])
-    goal = np.array([2.25, 2.2])
-    either = ControllerSpec("sa-mpc", replace(MPCConfig(), footprint="discs", footprint_route="pose_or_corridor"))
-    plan = _corridor_plan(goal)
-    narrow = _areas([[0, 0.45, 2.3, 0.55], [2.2, 0.55, 2.3, 2.5]])
-    out = footprint_route_plan(plan, narrow, _grid(50, 52), sc, start, either)
-    assert out.ok and out.reference is plan.reference and np.array_equal(out.corridor, plan.corridor)
-    assert "no pose path" in out.info["pose_route_fallback"] and out.info["pose_search_ms"] > 0
-    wide = _areas([[0, 0.45, 2.0, 0.55], [2.0, 0.1, 2.5, 0.9], [2.2, 0.9, 2.3, 2.5]])
-    out = footprint_route_plan(plan, wide, _grid(50, 52), sc, start, either)
-    assert out.ok and out.info["pose_route"] and len(out.disc_corridors) == 3
