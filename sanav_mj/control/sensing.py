@@ -60,6 +60,7 @@ from sanav_mj.control.base import Command, Observation
 from sanav_mj.control.config import MPCConfig
 from sanav_mj.control.localisation import ScanLocaliser
 from sanav_mj.control.sa_mpc import SAMPC
+from sanav_mj.control.sensed_footprint import SensedFootprint
 from sanav_mj.footprint import Footprint
 from sanav_mj.mapping.safe_areas import SafeAreas
 from sanav_mj.mapping.sensed_map import SensedMap, SensedMapConfig, SensedUpdate
@@ -140,6 +141,17 @@ class SensingConfig:
             ALM budget (10-40 ms) before being rejected. The command is the same as without
             it (the skipped solve could not have been accepted); only the step time
             changes (docs/benchmarks.md, "Lidar closed loop per step").
+        narrow_width: [m] ``MPCConfig.footprint="discs"``: the corridor search adds
+            ``footprint_narrow_penalty`` per edge through a place narrower than this (where
+            the circumscribed disc does not fit, ``2 (R + margin - inflation)``, as the
+            known-map mode; :class:`~sanav_mj.control.sensed_footprint.SensedFootprint`);
+            unused in ``"disc"`` mode. >= 0.
+        refresh: ``extend`` replans also once the corridor reaches the goal (the safe areas
+            grew since the last plan, at most every ``replan_interval`` steps), so the
+            corridor is made of the current map's areas, not of the slivers the goal's
+            surroundings were when first seen. False (default): not after the corridor
+            reaches the goal. The ``"discs"`` mode needs it (each disc centre must fit the
+            corridor's boxes: a 5 cm sliver at the goal stalled it, e.g. barn_0004).
     """
 
     replan_interval: int = 5
@@ -160,6 +172,8 @@ class SensingConfig:
     odometry_sigma: tuple[float, float] = (0.005, 0.007)
     precise_meas: tuple[float, float] = (0.01, 0.01)
     reach_check: bool = True
+    narrow_width: float = 0.0
+    refresh: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.replan_interval, bool) or not isinstance(self.replan_interval, int) \
@@ -190,6 +204,11 @@ class SensingConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"SensingConfig.{name}: expected a finite number > 0, got {v!r}")
+        if not (isinstance(self.narrow_width, (int, float)) and math.isfinite(self.narrow_width)
+                and self.narrow_width >= 0):
+            raise ValueError(f"SensingConfig.narrow_width: expected a finite number >= 0 [m], got {self.narrow_width!r}")
+        if not isinstance(self.refresh, bool):
+            raise ValueError(f"SensingConfig.refresh: expected True or False, got {self.refresh!r}")
         if not isinstance(self.background_replan, bool):
             raise ValueError(f"SensingConfig.background_replan: expected True or False, got {self.background_replan!r}")
 
@@ -338,6 +357,8 @@ class SensingSAMPC:
         self.planner = planner if planner is not None else PlannerConfig(dt=mpc.dt)
         self.config = config
         self.dt = float(mpc.dt)
+        # the footprint mode's own points, SA-MPC footprint and corridor-search areas
+        self.body = SensedFootprint.of(mpc, config.footprint, config.narrow_width)
         self.mpc: SAMPC | None = None
         t0 = time.perf_counter()
         self._spare: SAMPC | None = self._prebuilt_mpc()
@@ -358,7 +379,7 @@ class SensingSAMPC:
         plan = make_plan(areas, start, np.array([x0 + 0.75 * w, y0 + 0.5 * h]), self.robot, self.planner)
         if not plan.ok or plan.reference is None or len(plan.corridor) == 0:
             return None
-        return SAMPC(self.robot, areas, plan, self.mpc_config)
+        return SAMPC(self.robot, areas, plan, self.mpc_config, footprint=self.body.mpc_footprint)
 
     # ------------------------------------------------------------------ episode
 
@@ -437,7 +458,7 @@ class SensingSAMPC:
         if obs.scan is not None and np.all(np.isfinite(pose)):
             t0 = time.perf_counter()
             changed = False
-            if self.mpc is None or not self.map.grid.safe_at(self._cells(pose[None, :2]))[0]:
+            if self.mpc is None or not self._own_safe(pose):
                 fp = self._clear_body(pose)
                 changed, self._route_dirty = fp.changed, self._route_dirty or fp.route_changed
             k = self.config.beam_stride
@@ -529,7 +550,7 @@ class SensingSAMPC:
             # the first plan waits until the robot's own position is observed safe (or the
             # turn on the spot has lasted its limit: the planner then projects the start)
             turned_out = self._turn_steps * self.dt >= self.config.max_scan_turn_s
-            safe_here = bool(self.map.grid.safe_at(self._cells(pose[None, :2]))[0])
+            safe_here = self._own_safe(pose)
             return "initial" if safe_here or turned_out else None
         if changed and len(self._corridor_rects) and not self.map.rects_still_safe(self._corridor_rects).all():
             return "blocked"
@@ -538,10 +559,15 @@ class SensingSAMPC:
             if not self._route_clear():
                 return "route"
             self._route_dirty = False
-        far = np.hypot(*(self.local_goal - self.goal)) > 1e-9
+        far = self.config.refresh or np.hypot(*(self.local_goal - self.goal)) > 1e-9
         if far and self._grown and self._since_plan >= self.config.replan_interval:
             return "extend"
         return None
+
+    def _own_safe(self, pose: np.ndarray) -> bool:
+        """Whether the robot's own points (its position; ``"discs"``: every disc centre) at
+        ``pose`` (3,) [m, m, rad] lie in safe cells."""
+        return bool(self.map.grid.safe_at(self._cells(self.body.own_points(pose))).all())
 
     def _cells(self, pts: np.ndarray) -> np.ndarray:
         g = self.map.grid
@@ -582,7 +608,7 @@ class SensingSAMPC:
         changes nothing the control thread uses (it may run on the background thread)."""
         t0 = time.perf_counter()
         route_areas = self.map.route_areas()[1] if have_route else None
-        route_plan = make_plan(route_areas, pose, self.goal, self.robot, self.planner) \
+        route_plan = make_plan(self.body.planning_areas(route_areas), pose, self.goal, self.robot, self.planner) \
             if route_areas is not None else None
         if route_plan is not None and route_plan.ok and route_plan.reference is not None:
             # the reference samples only: they end at the plan's goal (the goal projected
@@ -594,7 +620,8 @@ class SensingSAMPC:
         target = self._local_goal(route)
         if target is None:
             return None
-        local = make_plan(areas, pose, target, self.robot, self.planner, start_speed=speed if moving else 0.0)
+        local = make_plan(self.body.planning_areas(areas), pose, target, self.robot, self.planner,
+                          start_speed=speed if moving else 0.0)
         if not local.ok or local.reference is None or len(local.corridor) == 0:
             return None
         return _Planned(local, areas, boxes, route, np.asarray(target, dtype=float), reason,
@@ -627,7 +654,7 @@ class SensingSAMPC:
     def _follow(self, plan: Plan, pose: np.ndarray, areas: SafeAreas, boxes: np.ndarray) -> None:
         u_prev = np.array([0.0, self._turn_w])
         if self.mpc is None and self._spare is None:
-            self.mpc = SAMPC(self.robot, areas, plan, self.mpc_config)
+            self.mpc = SAMPC(self.robot, areas, plan, self.mpc_config, footprint=self.body.mpc_footprint)
             self.mpc.reset(pose, u_prev=u_prev)
         elif self.mpc is None:
             self.mpc, self._spare = self._spare, None

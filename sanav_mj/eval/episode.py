@@ -494,20 +494,38 @@ def _chain(first, second):
 def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(), resolution: float = 0.05,
                      mismatch: Mismatch = Mismatch()):
     """The :class:`~sanav_mj.control.sensing.SensingSAMPC` a lidar run of ``scenario`` uses:
-    the known-map mode's inflation (footprint radius + :data:`DEFAULT_MARGIN_M`), the lidar
-    offset of the robot file, the planner matched to the MPC, the grid ``resolution`` [m]."""
+    the known-map mode's inflation (:func:`map_inflation`: circumscribed radius +
+    :data:`DEFAULT_MARGIN_M`, or in ``"discs"`` mode the disc cover's radius +
+    ``footprint_margin``), the lidar offset of the robot file, the planner matched to the MPC,
+    one grid of ``resolution`` [m] cells (the known map's local refinement,
+    ``footprint_refine``, is not applied to the sensed map) and, in ``"discs"`` mode, the
+    known map's narrow-passage penalty of the corridor search (:func:`planning_areas`).
+
+    Raises:
+        ValueError: ``"discs"`` with ``footprint_grow > 0`` or ``footprint_route="pose"``
+            (known-map settings: the grown boxes need the whole grid's free cells, the pose
+            search takes about a second per plan).
+    """
     from sanav_mj.control.sensing import SensingConfig, SensingSAMPC
     from sanav_mj.footprint import robot_footprint
     from sanav_mj.mapping.sensed_map import SensedMapConfig
     from sanav_mj.sim.lidar import lidar_config
 
+    mpc = cspec.sa_mpc
+    if mpc.footprint == "discs" and (mpc.footprint_grow > 0 or mpc.footprint_route != "corridor"):
+        raise ValueError(f"sensing lidar with MPCConfig.footprint='discs': expected footprint_grow=0 and "
+                         f"footprint_route='corridor', got footprint_grow={mpc.footprint_grow!r}, "
+                         f"footprint_route={mpc.footprint_route!r}")
     lcfg = lidar_config(scenario.model)
-    inflation = scenario.robot.footprint_radius + DEFAULT_MARGIN_M
+    inflation = map_inflation(scenario, cspec)
+    narrow = 2.0 * max(0.0, scenario.robot.footprint_radius + DEFAULT_MARGIN_M - inflation) \
+        if mpc.footprint == "discs" else 0.0
     spec = cspec.with_solve_budget(mismatch.solve_budget_ms)
     return SensingSAMPC(scenario.robot, scenario.bounds, scenario.goal, inflation, lcfg.offset,
                         spec.sa_mpc, planner_config(scenario.robot, spec),
                         SensingConfig(map=SensedMapConfig(resolution=resolution),
-                                      footprint=robot_footprint(scenario.model)))
+                                      footprint=robot_footprint(scenario.model), narrow_width=narrow,
+                                      refresh=mpc.footprint == "discs"))
 
 
 def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, resolution: float,
@@ -523,7 +541,11 @@ def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, reso
     from sanav_mj.sim.runner import run_episode
 
     if isinstance(source, Prepared):
-        scenario, resolution = source.scenario, source.grid.resolution
+        # the sensed map is one grid: a Prepared of a refined discs map has cells of
+        # resolution / footprint_refine (map_config), the base cells are the lidar map's
+        mpc = cspec.sa_mpc
+        refine = mpc.footprint_refine if mpc.footprint == "discs" and mpc.footprint_refine > 1 else 1
+        scenario, resolution = source.scenario, source.grid.resolution * refine
     else:
         scenario = source if isinstance(source, Scenario) else load_scenario(source)
     start = initial_pose(scenario, seed, yaw)
