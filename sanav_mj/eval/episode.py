@@ -505,6 +505,18 @@ def _chain(first, second):
     return both
 
 
+def lidar_spec(cspec: ControllerSpec) -> ControllerSpec:
+    """``cspec`` as a lidar run uses it: in ``"discs"`` mode with ``footprint_refine`` 1 (the
+    sensed map is one grid of the run's resolution: the known map's local refinement is not
+    applied to it, so the run document says refine 1); ``cspec`` itself otherwise."""
+    from dataclasses import replace
+
+    mpc = cspec.sa_mpc
+    if mpc.footprint != "discs" or mpc.footprint_refine == 1:
+        return cspec
+    return replace(cspec, sa_mpc=replace(mpc, footprint_refine=1))
+
+
 def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(), resolution: float = 0.05,
                      mismatch: Mismatch = Mismatch()):
     """The :class:`~sanav_mj.control.sensing.SensingSAMPC` a lidar run of ``scenario`` uses:
@@ -525,6 +537,7 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
     from sanav_mj.mapping.sensed_map import SensedMapConfig
     from sanav_mj.sim.lidar import lidar_config
 
+    cspec = lidar_spec(cspec)
     mpc = cspec.sa_mpc
     if mpc.footprint == "discs" and (mpc.footprint_grow > 0 or mpc.footprint_route != "corridor"):
         raise ValueError(f"sensing lidar with MPCConfig.footprint='discs': expected footprint_grow=0 and "
@@ -562,6 +575,7 @@ def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, reso
         scenario, resolution = source.scenario, source.grid.resolution * refine
     else:
         scenario = source if isinstance(source, Scenario) else load_scenario(source)
+    cspec = lidar_spec(cspec)
     start = initial_pose(scenario, seed, yaw)
     model = mismatched_model(scenario, mismatch) if mismatch.physical else None
     plant = Plant(scenario, model=model)
@@ -596,6 +610,7 @@ def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, reso
     mu = timing_stats(ctrl.map_update_ms)
     doc["map_update_ms"] = {"mean": mu["mean"], "max": mu["max"], "p99": mu["p99"]}
     doc["replans"] = int(ctrl.replans)
+    doc.update(footprint_fields(cspec))
     prep = _sensed_prepared(scenario, ctrl)
     if log is not None:
         log.close(ctrl, episode.steps)
