@@ -151,6 +151,8 @@ def cmd_closed_loop(args) -> int:
         mpc = spec.sa_mpc
         args.discs, args.margin, args.refine, args.grow = (mpc.footprint_discs, mpc.footprint_margin,
                                                            mpc.footprint_refine, mpc.footprint_grow)
+        if args.sensing == "lidar":  # the sensed map is one grid (episode.lidar_spec)
+            args.refine = episode.lidar_spec(spec).sa_mpc.footprint_refine
     else:
         # Measurement knob: the run path has no margin argument for the circumscribed disc,
         # so the module default is set for this process only (prepare() reads it).

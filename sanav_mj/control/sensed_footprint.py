@@ -24,11 +24,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from sanav_mj.control.config import MPCConfig
+from sanav_mj.control.sa_mpc import SAMPC
 from sanav_mj.footprint import Footprint
 from sanav_mj.mapping.safe_areas import SafeAreas
 from sanav_mj.planning.corridor import penalise_narrow
 
-__all__ = ["SensedFootprint"]
+__all__ = ["SensedFootprint", "StraightBrakeSAMPC"]
 
 
 @dataclass(frozen=True)
@@ -89,3 +90,29 @@ class SensedFootprint:
         if areas is None or self.narrow_penalty == 0 or self.narrow_width == 0:
             return areas
         return penalise_narrow(areas, self.narrow_width, self.narrow_penalty)
+
+
+class StraightBrakeSAMPC(SAMPC):
+    """:class:`SAMPC` whose braking fallback keeps the heading: speed and yaw rate both go to
+    zero at their rate bounds (the first of :meth:`SAMPC.brake_plan`'s five candidates,
+    without the steering to the side whose path stays deepest in the corridor).
+
+    Why, with the lidar in ``"discs"`` mode: the robot brakes mostly after a scan made a
+    corridor rectangle unsafe at speed (``blocked``); the new corridor starts where the robot
+    is and is too short to stop in, so every steering candidate leaves its boxes and the
+    "deepest" one was a hard turn that swung the body's corners (5 cm of margin in this
+    mode) into the obstacles beside the path: 2 collisions in the first 77 BARN-like worlds
+    (barn_0010, barn_0042, seed 0), both braking at 1.1-1.3 m/s while turning at up to 2
+    rad/s. The path the robot was on had been planned inside observed-free space; keeping
+    its heading while braking stays close to it.
+    """
+
+    def brake_plan(self, x0: np.ndarray) -> np.ndarray:
+        """(N, 2) [m/s, rad/s] inputs braking at the rate limits from the previous input, the
+        yaw rate ramping to 0 (``x0`` (3,) unused: the plan does not depend on the state)."""
+        k = np.arange(1, self.N + 1)
+        a, al = float(self._rate_step[0]), float(self._rate_step[1])
+        v0, w0 = float(self._u_prev[0]), float(self._u_prev[1])
+        v = np.sign(v0) * np.maximum(abs(v0) - k * a, 0.0)
+        w = np.sign(w0) * np.maximum(abs(w0) - k * al, 0.0)
+        return np.stack((v, w), axis=1)

@@ -60,7 +60,7 @@ from sanav_mj.control.base import Command, Observation
 from sanav_mj.control.config import MPCConfig
 from sanav_mj.control.localisation import ScanLocaliser
 from sanav_mj.control.sa_mpc import SAMPC
-from sanav_mj.control.sensed_footprint import SensedFootprint
+from sanav_mj.control.sensed_footprint import SensedFootprint, StraightBrakeSAMPC
 from sanav_mj.footprint import Footprint
 from sanav_mj.mapping.safe_areas import SafeAreas
 from sanav_mj.mapping.sensed_map import SensedMap, SensedMapConfig, SensedUpdate
@@ -152,6 +152,9 @@ class SensingConfig:
             surroundings were when first seen. False (default): not after the corridor
             reaches the goal. The ``"discs"`` mode needs it (each disc centre must fit the
             corridor's boxes: a 5 cm sliver at the goal stalled it, e.g. barn_0004).
+        straight_brake: the SA-MPC's braking fallback keeps the heading
+            (:class:`~sanav_mj.control.sensed_footprint.StraightBrakeSAMPC`) instead of
+            steering to the side deepest in the corridor; set in ``"discs"`` mode (see there).
     """
 
     replan_interval: int = 5
@@ -174,6 +177,7 @@ class SensingConfig:
     reach_check: bool = True
     narrow_width: float = 0.0
     refresh: bool = False
+    straight_brake: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.replan_interval, bool) or not isinstance(self.replan_interval, int) \
@@ -207,8 +211,9 @@ class SensingConfig:
         if not (isinstance(self.narrow_width, (int, float)) and math.isfinite(self.narrow_width)
                 and self.narrow_width >= 0):
             raise ValueError(f"SensingConfig.narrow_width: expected a finite number >= 0 [m], got {self.narrow_width!r}")
-        if not isinstance(self.refresh, bool):
-            raise ValueError(f"SensingConfig.refresh: expected True or False, got {self.refresh!r}")
+        for name in ("refresh", "straight_brake"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"SensingConfig.{name}: expected True or False, got {getattr(self, name)!r}")
         if not isinstance(self.background_replan, bool):
             raise ValueError(f"SensingConfig.background_replan: expected True or False, got {self.background_replan!r}")
 
@@ -359,6 +364,7 @@ class SensingSAMPC:
         self.dt = float(mpc.dt)
         # the footprint mode's own points, SA-MPC footprint and corridor-search areas
         self.body = SensedFootprint.of(mpc, config.footprint, config.narrow_width)
+        self._mpc_class = StraightBrakeSAMPC if config.straight_brake else SAMPC
         self.mpc: SAMPC | None = None
         t0 = time.perf_counter()
         self._spare: SAMPC | None = self._prebuilt_mpc()
@@ -379,7 +385,7 @@ class SensingSAMPC:
         plan = make_plan(areas, start, np.array([x0 + 0.75 * w, y0 + 0.5 * h]), self.robot, self.planner)
         if not plan.ok or plan.reference is None or len(plan.corridor) == 0:
             return None
-        return SAMPC(self.robot, areas, plan, self.mpc_config, footprint=self.body.mpc_footprint)
+        return self._mpc_class(self.robot, areas, plan, self.mpc_config, footprint=self.body.mpc_footprint)
 
     # ------------------------------------------------------------------ episode
 
@@ -654,7 +660,7 @@ class SensingSAMPC:
     def _follow(self, plan: Plan, pose: np.ndarray, areas: SafeAreas, boxes: np.ndarray) -> None:
         u_prev = np.array([0.0, self._turn_w])
         if self.mpc is None and self._spare is None:
-            self.mpc = SAMPC(self.robot, areas, plan, self.mpc_config, footprint=self.body.mpc_footprint)
+            self.mpc = self._mpc_class(self.robot, areas, plan, self.mpc_config, footprint=self.body.mpc_footprint)
             self.mpc.reset(pose, u_prev=u_prev)
         elif self.mpc is None:
             self.mpc, self._spare = self._spare, None

@@ -552,7 +552,7 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
                         spec.sa_mpc, planner_config(scenario.robot, spec),
                         SensingConfig(map=SensedMapConfig(resolution=resolution),
                                       footprint=robot_footprint(scenario.model), narrow_width=narrow,
-                                      refresh=mpc.footprint == "discs"))
+                                      refresh=mpc.footprint == "discs", straight_brake=mpc.footprint == "discs"))
 
 
 def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, resolution: float,

@@ -168,3 +168,22 @@ def test_discs_mode_counts_the_robot_in_safe_space_only_when_every_disc_centre_i
     disc = lidar_controller(sc)
     disc.map = m
     assert disc._own_safe(np.array([1.60, 0.025, 0.0]))
+
+
+def test_discs_lidar_brakes_keeping_its_heading():
+    """In discs mode with the lidar the braking fallback ramps speed and yaw rate to 0 at the
+    rate bounds (no steering candidate); the disc mode keeps SA-MPC's steering brake."""
+    from sanav_mj.control.sa_mpc import SAMPC
+    from sanav_mj.control.sensed_footprint import StraightBrakeSAMPC
+
+    sc = load_scenario("single_rect")
+    mpc = lidar_controller(sc, DISCS)._spare
+    assert type(mpc) is StraightBrakeSAMPC
+    assert type(lidar_controller(sc)._spare) is SAMPC
+    a, al = mpc._rate_step  # [m/s, rad/s] per step
+    mpc._u_prev = np.array([4.5 * a, -2.5 * al])
+    u = mpc.brake_plan(np.array([0.0, 0.0, 0.3]))
+    assert u.shape == (mpc.N, 2)
+    np.testing.assert_allclose(u[:6, 0], np.array([3.5, 2.5, 1.5, 0.5, 0.0, 0.0]) * a, rtol=0, atol=8 * np.finfo(float).eps)
+    np.testing.assert_allclose(u[:4, 1], np.array([-1.5, -0.5, 0.0, 0.0]) * al, rtol=0, atol=8 * np.finfo(float).eps)
+    assert not u[6:].any()
