@@ -7,6 +7,7 @@ sim); the CLI, ``demo``, ``bench`` and ``robustness`` all go through :func:`prep
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -517,6 +518,25 @@ def lidar_spec(cspec: ControllerSpec) -> ControllerSpec:
     return replace(cspec, sa_mpc=replace(mpc, footprint_refine=1))
 
 
+def sensed_narrow_width(lost: float, resolution: float) -> float:
+    """[m] the narrow-passage width of the corridor search on a sensed grid of ``resolution``
+    [m] cells, for a map inflated ``lost`` [m] less than the circumscribed-disc map.
+
+    The known map's rule (:func:`planning_areas`) calls a place narrow when it is narrower
+    than ``2 lost`` (the circumscribed disc has no room there). On the sensed grid widths
+    come in whole cells: with ``2 lost`` = 0.198 m a strip of 0.20 m (4 cells) is not
+    narrow by that rule, yet leaves the circumscribed disc 2 mm; the robot drove into such
+    strips and stalled at their turns (v_shape seed 3 and complex seed 1, seed 0-4 campaign,
+    2026-11-24). So every width of up to ``ceil(2 lost / resolution)`` cells is narrow: the
+    returned width is one cell more, compared with ``<``. 0 when ``lost <= 0``.
+    """
+    if not (math.isfinite(resolution) and resolution > 0):
+        raise ValueError(f"resolution: expected a finite number > 0 [m], got {resolution!r}")
+    if not lost > 0:
+        return 0.0
+    return (math.ceil(2.0 * lost / resolution - 1e-9) + 1) * resolution
+
+
 def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(), resolution: float = 0.05,
                      mismatch: Mismatch = Mismatch()):
     """The :class:`~sanav_mj.control.sensing.SensingSAMPC` a lidar run of ``scenario`` uses:
@@ -545,7 +565,7 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
                          f"footprint_route={mpc.footprint_route!r}")
     lcfg = lidar_config(scenario.model)
     inflation = map_inflation(scenario, cspec)
-    narrow = 2.0 * max(0.0, scenario.robot.footprint_radius + DEFAULT_MARGIN_M - inflation) \
+    narrow = sensed_narrow_width(scenario.robot.footprint_radius + DEFAULT_MARGIN_M - inflation, resolution) \
         if mpc.footprint == "discs" else 0.0
     spec = cspec.with_solve_budget(mismatch.solve_budget_ms)
     return SensingSAMPC(scenario.robot, scenario.bounds, scenario.goal, inflation, lcfg.offset,

@@ -187,3 +187,25 @@ def test_discs_lidar_brakes_keeping_its_heading():
     np.testing.assert_allclose(u[:6, 0], np.array([3.5, 2.5, 1.5, 0.5, 0.0, 0.0]) * a, rtol=0, atol=8 * np.finfo(float).eps)
     np.testing.assert_allclose(u[:4, 1], np.array([-1.5, -0.5, 0.0, 0.0]) * al, rtol=0, atol=8 * np.finfo(float).eps)
     assert not u[6:].any()
+
+
+@pytest.mark.parametrize("lost, resolution, width", [
+    (0.099, 0.05, 0.25),   # 2 lost = 0.198 m: strips of up to 4 cells (0.20 m) are narrow
+    (0.100, 0.05, 0.25),   # 0.20 m exactly: 4 cells leave the circumscribed disc nothing
+    (0.101, 0.05, 0.30),
+    (0.0, 0.05, 0.0),      # the circumscribed-disc map itself: nothing is narrower
+    (-0.01, 0.05, 0.0),
+])
+def test_sensed_narrow_width_counts_whole_cells(lost, resolution, width):
+    from sanav_mj.eval.episode import sensed_narrow_width
+
+    assert sensed_narrow_width(lost, resolution) == pytest.approx(width, abs=4 * np.finfo(float).eps)
+
+
+def test_discs_lidar_controller_narrow_width():
+    sc = load_scenario("single_rect")
+    ctrl = lidar_controller(sc, DISCS)
+    lost = sc.robot.footprint_radius + DEFAULT_MARGIN_M - ctrl.map.grid.inflation  # 0.0985 m
+    assert 0.0975 < lost < 0.1
+    assert ctrl.config.narrow_width == pytest.approx(0.25, abs=1e-15) == ctrl.body.narrow_width
+    assert lidar_controller(sc).config.narrow_width == 0.0
