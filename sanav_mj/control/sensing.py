@@ -5,9 +5,12 @@ brings a scan (``Observation.scan``):
 
 1. **Map update.** The scan is added to a :class:`~sanav_mj.mapping.sensed_map.SensedMap`
    at the pose the controller *measures* (pose noise acts on the map); before the first
-   plan, and whenever the robot's own cell is not safe, the robot's footprint disc is
-   first observed free (:meth:`SensedMap.clear_footprint`: the lidar ahead of the axle
-   never sees the cells under the robot). The safe areas (observed free space,
+   plan, and whenever the robot's own cell (``MPCConfig.footprint="discs"``: the cell of
+   any disc centre) is not safe, the robot's body is first observed free
+   (:meth:`SensedMap.clear_box`: the lidar ahead of the axle never sees the cells under
+   the robot). The map is inflated by what the footprint mode needs (the caller's
+   ``inflation``); :class:`~sanav_mj.control.sensed_footprint.SensedFootprint` holds the
+   mode's own points, SA-MPC footprint and corridor-search areas. The safe areas (observed free space,
    no occupied or unknown cell within the inflation radius) and the route areas (unknown
    counts as passable) are updated incrementally.
 2. **Replan check.** Corridor and reference are recomputed from the measured pose when
