@@ -151,9 +151,10 @@ class SensingConfig:
             changes (docs/benchmarks.md, "Lidar closed loop per step").
         narrow_width: [m] ``MPCConfig.footprint="discs"``: the corridor search adds
             ``footprint_narrow_penalty`` per edge through a place narrower than this (where
-            the circumscribed disc does not fit, ``2 (R + margin - inflation)``, as the
-            known-map mode; :class:`~sanav_mj.control.sensed_footprint.SensedFootprint`);
-            unused in ``"disc"`` mode. >= 0.
+            the circumscribed disc does not fit: ``2 (R + margin - inflation)`` counted in
+            whole cells, :func:`sanav_mj.eval.episode.sensed_narrow_width`;
+            :class:`~sanav_mj.control.sensed_footprint.SensedFootprint`); unused in
+            ``"disc"`` mode. >= 0.
         refresh: ``extend`` replans also once the corridor reaches the goal (the safe areas
             grew since the last plan, at most every ``replan_interval`` steps), so the
             corridor is made of the current map's areas, not of the slivers the goal's

@@ -209,3 +209,16 @@ def test_discs_lidar_controller_narrow_width():
     assert 0.0975 < lost < 0.1
     assert ctrl.config.narrow_width == pytest.approx(0.25, abs=1e-15) == ctrl.body.narrow_width
     assert lidar_controller(sc).config.narrow_width == 0.0
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"narrow_width": -0.1}, "narrow_width"),
+    ({"narrow_width": float("inf")}, "narrow_width"),
+    ({"refresh": 1}, "refresh"),
+    ({"straight_brake": "yes"}, "straight_brake"),
+])
+def test_sensing_config_discs_fields_are_validated(kwargs, match):
+    from sanav_mj.control.sensing import SensingConfig
+
+    with pytest.raises(ValueError, match=match):
+        SensingConfig(**kwargs)
