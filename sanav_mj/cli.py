@@ -165,7 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "as it drives (sa-mpc only) (default: %(default)s)")
     footprint_help = ("SA-MPC's robot body: disc (the circumscribed disc, the paper's) or discs (the footprint "
                       "rectangle covered by discs whose centres stay in the safe areas of a map inflated by "
-                      "their radius; sa-mpc and --sensing map only) (default: %(default)s)")
+                      "their radius; sa-mpc only) (default: %(default)s)")
     resume_help = ("keep the finished runs journalled in OUT/runs.jsonl (same settings) and run the rest "
                    "(default: start afresh)")
 
@@ -362,16 +362,14 @@ SENSING = ("map", "lidar")
 FOOTPRINTS = ("disc", "discs")
 
 
-def _check_footprint(footprint: str, sensing: str, controllers: list[str], option: str = "--controller") -> None:
-    """``--footprint discs`` is an SA-MPC setting with the known map: any other controller, or
-    ``--sensing lidar``, is bad input (exit 2)."""
+def _check_footprint(footprint: str, controllers: list[str], option: str = "--controller") -> None:
+    """``--footprint discs`` is an SA-MPC setting (with the known map or the lidar): any other
+    controller is bad input (exit 2)."""
     if footprint == "disc":
         return
     other = [c for c in controllers if c != "sa-mpc"]
     if other:
         raise BadInput(f"--footprint {footprint}: supported for the sa-mpc controller only, got {option} {' '.join(other)}")
-    if sensing != "map":
-        raise BadInput(f"--footprint {footprint}: supported with --sensing map only, got --sensing {sensing}")
 
 
 
@@ -463,7 +461,7 @@ def _cmd_run(args) -> int:
 
     mismatch = parse_mismatch(args.mismatch)
     _check_sensing(args.sensing, [args.controller])
-    _check_footprint(args.footprint, args.sensing, [args.controller])
+    _check_footprint(args.footprint, [args.controller])
     outputs = {"--json": args.json, "--rrd": args.rrd, "--plot": args.plot}
     _distinct_outputs(outputs)
     _check_outputs(outputs)
@@ -552,7 +550,7 @@ def run_line(doc: dict) -> str:
 def _cmd_demo(args) -> int:
     from sanav_mj.eval.demo import run_demo, summary_table
 
-    _check_footprint(args.footprint, args.sensing, ["sa-mpc"])
+    _check_footprint(args.footprint, ["sa-mpc"])
     _check_out_dir(args.out)
     result = run_demo(args.out, record=not args.no_rrd, sensing=args.sensing, footprint=args.footprint)
     print(summary_table(result.rows), end="")
@@ -570,7 +568,7 @@ def _cmd_bench(args) -> int:
     from sanav_mj.eval.bench import markdown_table, run_bench
 
     _check_sensing(args.sensing, args.controllers, "--controllers")
-    _check_footprint(args.footprint, args.sensing, args.controllers, "--controllers")
+    _check_footprint(args.footprint, args.controllers, "--controllers")
     _check_scenarios(args.scenarios)
     _check_out_dir(args.out)
     summary = run_bench(args.scenarios, args.controllers, args.runs, args.workers, args.out, record=args.rrd,
@@ -617,7 +615,7 @@ def _cmd_robustness(args) -> int:
     sweep = parse_sweep(args.sweep)
     fixed = _parse_fixed(args.fixed, sweep)
     _check_sensing(args.sensing, [args.controller])
-    _check_footprint(args.footprint, args.sensing, [args.controller])
+    _check_footprint(args.footprint, [args.controller])
     _check_scenarios(args.scenarios)
     _check_out_dir(args.out)
     default = " (the default; choose with --sweep KEY=V1,V2,...)" if args.sweep == list(DEFAULT_SWEEP) else ""

@@ -9,12 +9,15 @@
         BARN score per run of a ``sanav-mj bench`` output folder (results.csv) and the mean.
     python scripts/barn_eval.py closed-loop runs/barn40/*.xml [--worlds runs/barn40_worlds.csv] \
             --margin 0.05 --resolution 0.05 [--footprint disc|discs] [--discs 3] [--seeds 0 1] \
-            [--mismatch KEY=VALUE ...] --out runs/cl.json
+            [--mismatch KEY=VALUE ...] [--sensing map|lidar] --out runs/cl.json
         SA-MPC on each world and seed with the map inflated by circumscribed radius + MARGIN
         (--footprint disc) or by the N-disc cover's radius + MARGIN with the disc centres in the
         MPC (--footprint discs) at RESOLUTION; per run also the largest distance of the true
         position (disc mode) or of every true disc centre (discs mode) outside every safe area
-        (the tracking excursion the margin has to absorb) and the solve times.
+        (the tracking excursion the margin has to absorb) and the solve times. With
+        ``--sensing lidar`` the robot maps with its own lidar (docs/sensing.md); per run also
+        the replans, the map update and pipeline times and the safe-area violation steps
+        (the excursion is then not computed: the safe areas change from step to step).
 
 One process; prints a markdown summary, writes CSV.
 """
@@ -148,6 +151,8 @@ def cmd_closed_loop(args) -> int:
         mpc = spec.sa_mpc
         args.discs, args.margin, args.refine, args.grow = (mpc.footprint_discs, mpc.footprint_margin,
                                                            mpc.footprint_refine, mpc.footprint_grow)
+        if args.sensing == "lidar":  # the sensed map is one grid (episode.lidar_spec)
+            args.refine = episode.lidar_spec(spec).sa_mpc.footprint_refine
     else:
         # Measurement knob: the run path has no margin argument for the circumscribed disc,
         # so the module default is set for this process only (prepare() reads it).
@@ -163,10 +168,11 @@ def cmd_closed_loop(args) -> int:
     rows = []
     for path, seed in ((p, s) for p in args.scenarios for s in args.seeds):
         out = episode.run_scenario(path, seed=seed, resolution=args.resolution, mismatch=mismatch,
-                                   controller_spec=spec)
+                                   controller_spec=spec, sensing=args.sensing)
         d = out.document
-        exc = 0.0
-        if d["trace"]["x"]:
+        lidar = args.sensing == "lidar"
+        exc = math.nan if lidar else 0.0
+        if d["trace"]["x"] and not lidar:
             rects = np.asarray(out.prepared.areas.rects)
             xy = np.column_stack([d["trace"]["x"], d["trace"]["y"]])
             if args.footprint == "discs":  # every disc centre of the cover, true pose
@@ -179,19 +185,32 @@ def cmd_closed_loop(args) -> int:
                      "sim_time_s": d["sim_time_s"], "collisions": d["collisions"],
                      "min_clearance_m": d["min_clearance_m"], "excursion_m": exc,
                      "solve_mean_ms": d["solve_ms"]["mean"], "solve_p99_ms": d["solve_ms"]["p99"],
-                     "steps": d["steps"],
+                     "steps": d["steps"], "safe_area_violations": d["safe_area_violations"],
                      "barn_score": barn_score(d["success"], d["sim_time_s"], to) if math.isfinite(to) else math.nan})
+        if lidar:
+            rows[-1].update(replans=d["replans"], map_update_mean_ms=d["map_update_ms"]["mean"],
+                            map_update_p99_ms=d["map_update_ms"]["p99"], pipeline_mean_ms=d["pipeline_ms"]["mean"],
+                            pipeline_p99_ms=d["pipeline_ms"].get("p99"))
+        extra = (f", {d['replans']} replans, map update {d['map_update_ms']['mean']:.2f} ms, "
+                 f"SA viol. {d['safe_area_violations']}") if lidar else ""
         print(f"{d['scenario']}/{seed}: {d['reason']} {d['sim_time_s']:.1f} s, excursion {exc:.4f} m, "
-              f"solve mean {d['solve_ms']['mean']:.2f} p99 {d['solve_ms']['p99']:.2f} ms", flush=True)
+              f"solve mean {d['solve_ms']['mean']:.2f} p99 {d['solve_ms']['p99']:.2f} ms{extra}", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(rows, indent=1))
     ok = [r for r in rows if r["success"]]
     clr = [r["min_clearance_m"] for r in rows if r["min_clearance_m"] is not None]
-    print(f"footprint {args.footprint}, discs {args.discs}, refine {args.refine}, grow {args.grow}/{args.grow_tighten}, margin {args.margin} m, cells {args.resolution} m, mismatch {mm}: success {len(ok)}/{len(rows)}, "
+    print(f"sensing {args.sensing}, footprint {args.footprint}, discs {args.discs}, refine {args.refine}, grow {args.grow}/{args.grow_tighten}, margin {args.margin} m, cells {args.resolution} m, mismatch {mm}: success {len(ok)}/{len(rows)}, "
           f"runs with collision {sum(r['collisions'] > 0 for r in rows)}, {dict(Counter(r['reason'] for r in rows))}, "
           f"mean time (successful) {np.mean([r['sim_time_s'] for r in ok]) if ok else float('nan'):.2f} s, "
           f"mean BARN score {np.mean([r['barn_score'] for r in rows]):.3f}, "
           f"min clearance {min(clr) if clr else float('nan'):.3f} m, max excursion {max(r['excursion_m'] for r in rows):.4f} m")
+    if args.sensing == "lidar":
+        print(f"lidar: replans mean {np.mean([r['replans'] for r in rows]):.1f} (successful "
+              f"{np.mean([r['replans'] for r in ok]) if ok else float('nan'):.1f}), map update mean of run means "
+              f"{np.nanmean([r['map_update_mean_ms'] for r in rows]):.2f} ms, median run p99 "
+              f"{np.nanmedian([r['map_update_p99_ms'] for r in rows]):.2f} ms, pipeline mean of run means "
+              f"{np.nanmean([r['pipeline_mean_ms'] for r in rows]):.2f} ms, safe-area violation steps "
+              f"{sum(r['safe_area_violations'] for r in rows)} in {sum(r['safe_area_violations'] > 0 for r in rows)} runs")
     ran = [r for r in rows if r["steps"] > 0]
     if ran:
         w = np.array([r["steps"] for r in ran], float)
@@ -238,6 +257,8 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--grow-tighten", type=float, default=None,
                    help="[m] discs mode, --grow > 0: tighten the added room by this much more than the box margin")
     c.add_argument("--mismatch", nargs="*", default=[])
+    c.add_argument("--sensing", choices=("map", "lidar"), default="map",
+                   help="map: the grid from the true geoms; lidar: the robot maps with its own lidar")
     c.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     try:

@@ -151,6 +151,28 @@ def test_lidar_run_document_is_the_cli_json(tmp_path):
     assert doc["sensing"] == "lidar" and doc["replans"] == written["replans"]
 
 
+def test_lidar_run_with_the_discs_footprint():
+    """``sensing="lidar"`` with a discs-mode ControllerSpec: the sensed map is inflated by the
+    disc cover's radius + footprint_margin and the document names the footprint settings (one
+    grid: refine 1); known-map-only discs settings are refused."""
+    from dataclasses import replace
+
+    from sanav_mj.control.config import MPCConfig
+    from sanav_mj.control.spec import ControllerSpec
+
+    spec = ControllerSpec("sa-mpc", replace(MPCConfig(), footprint="discs"))
+    res = sanav_mj.run_scenario("single_rect", controller=spec, seed=1, sensing="lidar")
+    doc = res.to_dict()
+    assert doc["success"] and doc["collisions"] == 0 and doc["sensing"] == "lidar"
+    assert doc["footprint"] == {"mode": "discs", "discs": 3, "margin_m": 0.05, "route": "corridor", "refine": 1,
+                                "grow_m": 0.0}
+    fp = sanav_mj.footprint.robot_footprint(res.prepared.scenario.model)
+    assert res.sensed.map.grid.inflation == fp.discs(3)[1] + 0.05
+    with pytest.raises(ValueError, match="footprint_grow"):
+        sanav_mj.run_scenario("single_rect", controller=replace(spec, sa_mpc=replace(spec.sa_mpc, footprint_grow=1.0)),
+                              sensing="lidar")
+
+
 @pytest.mark.parametrize("kwargs, match", [
     ({"sensing": "radar"}, "sensing"),
     ({"sensing": "lidar", "controller": "dwa"}, "sa-mpc"),

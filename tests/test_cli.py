@@ -533,6 +533,15 @@ def test_bench_and_robustness_pass_sensing_to_every_run(tmp_path, capsys, monkey
 
     assert job_key(Job("u_shape", "sa-mpc", 0)) == '["u_shape","sa-mpc",0,[],60.0]'
     assert job_key(Job("u_shape", "sa-mpc", 0, sensing="lidar")) == '["u_shape","sa-mpc",0,[],60.0,"lidar"]'
+    # the footprint discs with the lidar: both reach every job
+    seen.clear()
+    code, _, err = _run(["bench", "single_rect", "--controllers", "sa-mpc", "--runs", "1", "--sensing", "lidar",
+                         "--footprint", "discs", "--out", str(tmp_path / "bd")], capsys)
+    assert code == 0, err
+    code, _, err = _run(["robustness", "single_rect", "--seeds", "1", "--sweep", "delay=0", "--sensing", "lidar",
+                         "--footprint", "discs", "--out", str(tmp_path / "rd")], capsys)
+    assert code == 0, err
+    assert len(seen) == 2 and {(j.sensing, j.footprint) for j in seen} == {("lidar", "discs")}
 
 
 def test_run_is_a_thin_layer_over_the_python_api(tmp_path, capsys, monkeypatch):
@@ -559,8 +568,9 @@ def test_run_is_a_thin_layer_over_the_python_api(tmp_path, capsys, monkeypatch):
     (["bench", "single_rect", "--footprint", "discs"], "--footprint discs: supported for the sa-mpc controller only"),
     (["robustness", "single_rect", "--footprint", "discs", "--controller", "dwa"], "--controller dwa"),
     (["run", "single_rect", "--footprint", "discs", "--controller", "mpc"], "--controller mpc"),
-    (["run", "single_rect", "--footprint", "discs", "--sensing", "lidar"], "--sensing map only"),
-    (["demo", "--footprint", "discs", "--sensing", "lidar"], "--sensing map only"),
+    (["run", "single_rect", "--footprint", "discs", "--sensing", "lidar", "--controller", "dwa"], "--controller dwa"),
+    (["bench", "single_rect", "--footprint", "discs", "--sensing", "lidar", "--controllers", "sa-mpc", "dqn"],
+     "--controllers dqn"),
     (["run", "single_rect", "--footprint", "rectangle"], "--footprint"),
 ])
 def test_footprint_option_bad_input_exit_2_one_line(argv, fragment, capsys, tmp_path):
@@ -598,19 +608,22 @@ def test_bench_and_robustness_pass_the_footprint_to_every_run(tmp_path, capsys, 
 def test_run_footprint_reaches_the_controller_spec(capsys, monkeypatch):
     import sanav_mj.api as api
 
-    specs = []
+    specs, sensing = [], []
 
     def fake(scenario, controller="sa-mpc", **kw):
         specs.append(controller)
+        sensing.append(kw.get("sensing"))
         raise KeyboardInterrupt  # stop before any simulation
 
     monkeypatch.setattr(api, "run_scenario", fake)
-    for flag in ([], ["--footprint", "disc"], ["--footprint", "discs"]):
+    for flag in ([], ["--footprint", "disc"], ["--footprint", "discs"], ["--footprint", "discs", "--sensing", "lidar"]):
         assert _run(["run", "single_rect"] + flag, capsys)[0] == 130
     from sanav_mj.control.spec import ControllerSpec
 
     assert specs[0] == ControllerSpec("sa-mpc") and specs[1] == ControllerSpec("sa-mpc")
     assert specs[2].sa_mpc.footprint == "discs" and specs[2].name == "sa-mpc"
+    # discs with the lidar is accepted (it was refused before issue 16's discs mode)
+    assert specs[3] == specs[2] and sensing == ["map", "map", "map", "lidar"]
 
 
 def test_demo_passes_the_footprint(tmp_path, capsys, monkeypatch):
@@ -623,9 +636,9 @@ def test_demo_passes_the_footprint(tmp_path, capsys, monkeypatch):
         return demo.DemoResult(rows=[{k: v for k, v in _doc().items()}])
 
     monkeypatch.setattr(demo, "run_demo", fake)
-    for flag in ([], ["--footprint", "discs"]):
+    for flag in ([], ["--footprint", "discs"], ["--footprint", "discs", "--sensing", "lidar"]):
         assert _run(["demo", "--no-rrd", "--out", str(tmp_path)] + flag, capsys)[0] == 0
-    assert seen == ["disc", "discs"]
+    assert seen == ["disc", "discs", "discs"]
 
 
 @pytest.mark.parametrize("argv,name", [

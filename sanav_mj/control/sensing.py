@@ -5,9 +5,12 @@ brings a scan (``Observation.scan``):
 
 1. **Map update.** The scan is added to a :class:`~sanav_mj.mapping.sensed_map.SensedMap`
    at the pose the controller *measures* (pose noise acts on the map); before the first
-   plan, and whenever the robot's own cell is not safe, the robot's footprint disc is
-   first observed free (:meth:`SensedMap.clear_footprint`: the lidar ahead of the axle
-   never sees the cells under the robot). The safe areas (observed free space,
+   plan, and whenever the robot's own cell (``MPCConfig.footprint="discs"``: the cell of
+   any disc centre) is not safe, the robot's body is first observed free
+   (:meth:`SensedMap.clear_box`: the lidar ahead of the axle never sees the cells under
+   the robot). The map is inflated by what the footprint mode needs (the caller's
+   ``inflation``); :class:`~sanav_mj.control.sensed_footprint.SensedFootprint` holds the
+   mode's own points, SA-MPC footprint and corridor-search areas. The safe areas (observed free space,
    no occupied or unknown cell within the inflation radius) and the route areas (unknown
    counts as passable) are updated incrementally.
 2. **Replan check.** Corridor and reference are recomputed from the measured pose when
@@ -64,6 +67,7 @@ from sanav_mj.control.config import MPCConfig
 from sanav_mj.control.localisation import ScanLocaliser
 from sanav_mj.control.replan import kept_prefix, prefixed_areas
 from sanav_mj.control.sa_mpc import SAMPC
+from sanav_mj.control.sensed_footprint import SensedFootprint, StraightBrakeSAMPC
 from sanav_mj.footprint import Footprint
 from sanav_mj.mapping.safe_areas import SafeAreas
 from sanav_mj.mapping.sensed_map import SensedMap, SensedMapConfig, SensedUpdate
@@ -145,6 +149,21 @@ class SensingConfig:
             ALM budget (10-40 ms) before being rejected. The command is the same as without
             it (the skipped solve could not have been accepted); only the step time
             changes (docs/benchmarks.md, "Lidar closed loop per step").
+        narrow_width: [m] ``MPCConfig.footprint="discs"``: the corridor search adds
+            ``footprint_narrow_penalty`` per edge through a place narrower than this (where
+            the circumscribed disc does not fit: ``2 (R + margin - inflation)`` counted in
+            whole cells, :func:`sanav_mj.eval.episode.sensed_narrow_width`;
+            :class:`~sanav_mj.control.sensed_footprint.SensedFootprint`); unused in
+            ``"disc"`` mode. >= 0.
+        refresh: ``extend`` replans also once the corridor reaches the goal (the safe areas
+            grew since the last plan, at most every ``replan_interval`` steps), so the
+            corridor is made of the current map's areas, not of the slivers the goal's
+            surroundings were when first seen. False (default): not after the corridor
+            reaches the goal. The ``"discs"`` mode needs it (each disc centre must fit the
+            corridor's boxes: a 5 cm sliver at the goal stalled it, e.g. barn_0004).
+        straight_brake: the SA-MPC's braking fallback keeps the heading
+            (:class:`~sanav_mj.control.sensed_footprint.StraightBrakeSAMPC`) instead of
+            steering to the side deepest in the corridor; set in ``"discs"`` mode (see there).
         keep_rects: a replan in motion keeps the rectangles of the corridor being followed
             that hold the robot's predicted positions (each re-verified safe in the current
             map, a partly unsafe one cut to a safe part holding them;
@@ -180,6 +199,9 @@ class SensingConfig:
     odometry_sigma: tuple[float, float] = (0.005, 0.007)
     precise_meas: tuple[float, float] = (0.01, 0.01)
     reach_check: bool = True
+    narrow_width: float = 0.0
+    refresh: bool = False
+    straight_brake: bool = False
     keep_rects: bool = True
     route_polyline: bool = False
 
@@ -212,6 +234,12 @@ class SensingConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"SensingConfig.{name}: expected a finite number > 0, got {v!r}")
+        if not (isinstance(self.narrow_width, (int, float)) and math.isfinite(self.narrow_width)
+                and self.narrow_width >= 0):
+            raise ValueError(f"SensingConfig.narrow_width: expected a finite number >= 0 [m], got {self.narrow_width!r}")
+        for name in ("refresh", "straight_brake"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"SensingConfig.{name}: expected True or False, got {getattr(self, name)!r}")
         if not isinstance(self.route_polyline, bool):
             raise ValueError(f"SensingConfig.route_polyline: expected True or False, got {self.route_polyline!r}")
         if not isinstance(self.keep_rects, bool):
@@ -364,6 +392,9 @@ class SensingSAMPC:
         self.planner = planner if planner is not None else PlannerConfig(dt=mpc.dt)
         self.config = config
         self.dt = float(mpc.dt)
+        # the footprint mode's own points, SA-MPC footprint and corridor-search areas
+        self.body = SensedFootprint.of(mpc, config.footprint, config.narrow_width)
+        self._mpc_class = StraightBrakeSAMPC if config.straight_brake else SAMPC
         self.mpc: SAMPC | None = None
         t0 = time.perf_counter()
         self._spare: SAMPC | None = self._prebuilt_mpc()
@@ -384,7 +415,7 @@ class SensingSAMPC:
         plan = make_plan(areas, start, np.array([x0 + 0.75 * w, y0 + 0.5 * h]), self.robot, self.planner)
         if not plan.ok or plan.reference is None or len(plan.corridor) == 0:
             return None
-        return SAMPC(self.robot, areas, plan, self.mpc_config)
+        return self._mpc_class(self.robot, areas, plan, self.mpc_config, footprint=self.body.mpc_footprint)
 
     # ------------------------------------------------------------------ episode
 
@@ -464,7 +495,7 @@ class SensingSAMPC:
         if obs.scan is not None and np.all(np.isfinite(pose)):
             t0 = time.perf_counter()
             changed = False
-            if self.mpc is None or not self.map.grid.safe_at(self._cells(pose[None, :2]))[0]:
+            if self.mpc is None or not self._own_safe(pose):
                 fp = self._clear_body(pose)
                 changed, self._route_dirty = fp.changed, self._route_dirty or fp.route_changed
             k = self.config.beam_stride
@@ -557,7 +588,7 @@ class SensingSAMPC:
             # the first plan waits until the robot's own position is observed safe (or the
             # turn on the spot has lasted its limit: the planner then projects the start)
             turned_out = self._turn_steps * self.dt >= self.config.max_scan_turn_s
-            safe_here = bool(self.map.grid.safe_at(self._cells(pose[None, :2]))[0])
+            safe_here = self._own_safe(pose)
             return "initial" if safe_here or turned_out else None
         if changed and len(self._corridor_rects) and not self.map.rects_still_safe(self._corridor_rects).all():
             return "blocked"
@@ -566,10 +597,15 @@ class SensingSAMPC:
             if not self._route_clear():
                 return "route"
             self._route_dirty = False
-        far = np.hypot(*(self.local_goal - self.goal)) > 1e-9
+        far = self.config.refresh or np.hypot(*(self.local_goal - self.goal)) > 1e-9
         if far and self._grown and self._since_plan >= self.config.replan_interval:
             return "extend"
         return None
+
+    def _own_safe(self, pose: np.ndarray) -> bool:
+        """Whether the robot's own points (its position; ``"discs"``: every disc centre) at
+        ``pose`` (3,) [m, m, rad] lie in safe cells."""
+        return bool(self.map.grid.safe_at(self._cells(self.body.own_points(pose))).all())
 
     def _cells(self, pts: np.ndarray) -> np.ndarray:
         g = self.map.grid
@@ -621,9 +657,10 @@ class SensingSAMPC:
             # the waypoint polyline, ending at the goal used (projected into the route areas
             # when the goal lies within the inflation of an obstacle), so a goal close to an
             # obstacle does not make the route look blocked at every step
-            route = route_points(route_areas, pose, self.goal, self.planner)
+            route = route_points(self.body.planning_areas(route_areas), pose, self.goal, self.planner)
         elif route_areas is not None:
-            route_plan = make_plan(route_areas, pose, self.goal, self.robot, self.planner)
+            route_plan = make_plan(self.body.planning_areas(route_areas), pose, self.goal, self.robot,
+                                   self.planner)
             if route_plan.ok and route_plan.reference is not None:
                 route = route_plan.reference.states[:, :2]  # the reference samples, as above
         target = self._local_goal(route)
@@ -634,13 +671,15 @@ class SensingSAMPC:
         if kept is not None and len(kept):
             g = self.map.grid
             k_areas, k_boxes = prefixed_areas(areas, boxes, kept, g.origin, g.resolution)
-            local = make_plan(k_areas, pose, target, self.robot, self.planner, start_speed=v0)
+            local = make_plan(self.body.planning_areas(k_areas), pose, target, self.robot, self.planner,
+                              start_speed=v0)
             if local.ok and local.reference is not None and len(local.corridor):
                 areas, boxes = k_areas, k_boxes
             else:
                 local = None
         if local is None:
-            local = make_plan(areas, pose, target, self.robot, self.planner, start_speed=v0)
+            local = make_plan(self.body.planning_areas(areas), pose, target, self.robot, self.planner,
+                              start_speed=v0)
         if not local.ok or local.reference is None or len(local.corridor) == 0:
             return None
         return _Planned(local, areas, boxes, route, np.asarray(target, dtype=float), reason,
@@ -673,7 +712,7 @@ class SensingSAMPC:
     def _follow(self, plan: Plan, pose: np.ndarray, areas: SafeAreas, boxes: np.ndarray) -> None:
         u_prev = np.array([0.0, self._turn_w])
         if self.mpc is None and self._spare is None:
-            self.mpc = SAMPC(self.robot, areas, plan, self.mpc_config)
+            self.mpc = self._mpc_class(self.robot, areas, plan, self.mpc_config, footprint=self.body.mpc_footprint)
             self.mpc.reset(pose, u_prev=u_prev)
         elif self.mpc is None:
             self.mpc, self._spare = self._spare, None

@@ -7,6 +7,7 @@ sim); the CLI, ``demo``, ``bench`` and ``robustness`` all go through :func:`prep
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -505,23 +506,73 @@ def _chain(first, second):
     return both
 
 
+def lidar_spec(cspec: ControllerSpec) -> ControllerSpec:
+    """``cspec`` as a lidar run uses it: in ``"discs"`` mode with ``footprint_refine`` 1 (the
+    sensed map is one grid of the run's resolution: the known map's local refinement is not
+    applied to it, so the run document says refine 1); ``cspec`` itself otherwise."""
+    from dataclasses import replace
+
+    mpc = cspec.sa_mpc
+    if mpc.footprint != "discs" or mpc.footprint_refine == 1:
+        return cspec
+    return replace(cspec, sa_mpc=replace(mpc, footprint_refine=1))
+
+
+def sensed_narrow_width(lost: float, resolution: float) -> float:
+    """[m] the narrow-passage width of the corridor search on a sensed grid of ``resolution``
+    [m] cells, for a map inflated ``lost`` [m] less than the circumscribed-disc map.
+
+    The known map's rule (:func:`planning_areas`) calls a place narrow when it is narrower
+    than ``2 lost`` (the circumscribed disc has no room there). On the sensed grid widths
+    come in whole cells: with ``2 lost`` = 0.198 m a strip of 0.20 m (4 cells) is not
+    narrow by that rule, yet leaves the circumscribed disc 2 mm; the robot drove into such
+    strips and stalled at their turns (v_shape seed 3 and complex seed 1, seed 0-4 campaign,
+    2026-11-24). So every width of up to ``ceil(2 lost / resolution)`` cells is narrow: the
+    returned width is one cell more, compared with ``<``. 0 when ``lost <= 0``.
+    """
+    if not (math.isfinite(resolution) and resolution > 0):
+        raise ValueError(f"resolution: expected a finite number > 0 [m], got {resolution!r}")
+    if not lost > 0:
+        return 0.0
+    return (math.ceil(2.0 * lost / resolution - 1e-9) + 1) * resolution
+
+
 def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(), resolution: float = 0.05,
                      mismatch: Mismatch = Mismatch()):
     """The :class:`~sanav_mj.control.sensing.SensingSAMPC` a lidar run of ``scenario`` uses:
-    the known-map mode's inflation (footprint radius + :data:`DEFAULT_MARGIN_M`), the lidar
-    offset of the robot file, the planner matched to the MPC, the grid ``resolution`` [m]."""
+    the known-map mode's inflation (:func:`map_inflation`: circumscribed radius +
+    :data:`DEFAULT_MARGIN_M`, or in ``"discs"`` mode the disc cover's radius +
+    ``footprint_margin``), the lidar offset of the robot file, the planner matched to the MPC,
+    one grid of ``resolution`` [m] cells (the known map's local refinement,
+    ``footprint_refine``, is not applied to the sensed map) and, in ``"discs"`` mode, the
+    known map's narrow-passage penalty of the corridor search (:func:`planning_areas`).
+
+    Raises:
+        ValueError: ``"discs"`` with ``footprint_grow > 0`` or ``footprint_route="pose"``
+            (known-map settings: the grown boxes need the whole grid's free cells, the pose
+            search takes about a second per plan).
+    """
     from sanav_mj.control.sensing import SensingConfig, SensingSAMPC
     from sanav_mj.footprint import robot_footprint
     from sanav_mj.mapping.sensed_map import SensedMapConfig
     from sanav_mj.sim.lidar import lidar_config
 
+    cspec = lidar_spec(cspec)
+    mpc = cspec.sa_mpc
+    if mpc.footprint == "discs" and (mpc.footprint_grow > 0 or mpc.footprint_route != "corridor"):
+        raise ValueError(f"sensing lidar with MPCConfig.footprint='discs': expected footprint_grow=0 and "
+                         f"footprint_route='corridor', got footprint_grow={mpc.footprint_grow!r}, "
+                         f"footprint_route={mpc.footprint_route!r}")
     lcfg = lidar_config(scenario.model)
-    inflation = scenario.robot.footprint_radius + DEFAULT_MARGIN_M
+    inflation = map_inflation(scenario, cspec)
+    narrow = sensed_narrow_width(scenario.robot.footprint_radius + DEFAULT_MARGIN_M - inflation, resolution) \
+        if mpc.footprint == "discs" else 0.0
     spec = cspec.with_solve_budget(mismatch.solve_budget_ms)
     return SensingSAMPC(scenario.robot, scenario.bounds, scenario.goal, inflation, lcfg.offset,
                         spec.sa_mpc, planner_config(scenario.robot, spec),
                         SensingConfig(map=SensedMapConfig(resolution=resolution),
-                                      footprint=robot_footprint(scenario.model)))
+                                      footprint=robot_footprint(scenario.model), narrow_width=narrow,
+                                      refresh=mpc.footprint == "discs", straight_brake=mpc.footprint == "discs"))
 
 
 def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, resolution: float,
@@ -537,9 +588,14 @@ def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, reso
     from sanav_mj.sim.runner import run_episode
 
     if isinstance(source, Prepared):
-        scenario, resolution = source.scenario, source.grid.resolution
+        # the sensed map is one grid: a Prepared of a refined discs map has cells of
+        # resolution / footprint_refine (map_config), the base cells are the lidar map's
+        mpc = cspec.sa_mpc
+        refine = mpc.footprint_refine if mpc.footprint == "discs" and mpc.footprint_refine > 1 else 1
+        scenario, resolution = source.scenario, source.grid.resolution * refine
     else:
         scenario = source if isinstance(source, Scenario) else load_scenario(source)
+    cspec = lidar_spec(cspec)
     start = initial_pose(scenario, seed, yaw)
     model = mismatched_model(scenario, mismatch) if mismatch.physical else None
     plant = Plant(scenario, model=model)
@@ -574,6 +630,7 @@ def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, reso
     mu = timing_stats(ctrl.map_update_ms)
     doc["map_update_ms"] = {"mean": mu["mean"], "max": mu["max"], "p99": mu["p99"]}
     doc["replans"] = int(ctrl.replans)
+    doc.update(footprint_fields(cspec))
     prep = _sensed_prepared(scenario, ctrl)
     if log is not None:
         log.close(ctrl, episode.steps)

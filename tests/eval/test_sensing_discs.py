@@ -1,0 +1,224 @@
+"""The footprint discs mode (``MPCConfig.footprint="discs"``) with the lidar.
+
+- The sensed map is inflated by the disc cover's radius + ``footprint_margin`` (known answer
+  on a hand-made scan: where the safe cells end in front of a wall).
+- Every disc centre's hard rows (its stage boxes, the documented widening towards a measured
+  position outside its box undone) lie in cells observed safe at that step, and in free
+  cells of the true grid inflated the same way; the first plan waits until every disc centre
+  stands in a safe cell.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sanav_mj.eval.episode import (DEFAULT_MARGIN_M, footprint_spec, lidar_controller, lidar_spec, prepare,
+                                   run_scenario)
+from sanav_mj.footprint import robot_footprint
+from sanav_mj.scene import load_scenario
+
+DISCS = footprint_spec("sa-mpc", "discs")
+
+
+def _cells_of(box, origin, h, shape):
+    """Cells whose interior meets the box (xmin, ymin, xmax, ymax) [m] (1e-9 of a cell: box edges
+    lie on cell boundaries up to the rounding of origin + k h)."""
+    ny, nx = shape
+    j0 = int(np.clip(math.floor((box[0] - origin[0]) / h + 1e-9), 0, nx))
+    i0 = int(np.clip(math.floor((box[1] - origin[1]) / h + 1e-9), 0, ny))
+    j1 = int(np.clip(math.ceil((box[2] - origin[0]) / h - 1e-9), 0, nx))
+    i1 = int(np.clip(math.ceil((box[3] - origin[1]) / h - 1e-9), 0, ny))
+    return slice(i0, i1), slice(j0, j1)
+
+
+def _wall_scan(x_wall: float, n: int = 721):
+    """A scan from a sensor at the origin facing +x of a wall at x = ``x_wall`` [m]: beams over
+    +-60 deg, each ending exactly on the wall."""
+    a = np.linspace(-math.pi / 3, math.pi / 3, n)
+    return x_wall / np.cos(a), np.ones(n, bool), a
+
+
+@pytest.mark.parametrize("mode, inflation, last_safe", [
+    # the wall's return cells are column 60 (x in [2.0, 2.05)); a cell is safe when the gap
+    # between its square and the wall cells' exceeds the inflation: (60 - j - 1) 0.05 m
+    ("discs", None, 53),  # 0.231 + 0.05 = 0.281 m: column 53 has a gap of 0.30 m, column 54 0.25 m
+    ("disc", 0.330 + DEFAULT_MARGIN_M, 51),  # 0.38 m: column 51 has 0.40 m, column 52 0.35 m
+])
+def test_sensed_map_is_inflated_by_the_mode_radius(mode, inflation, last_safe):
+    sc = load_scenario("single_rect")
+    ctrl = lidar_controller(sc, footprint_spec("sa-mpc", mode))
+    fp = robot_footprint(sc.model)
+    expected = fp.discs(3)[1] + DISCS.sa_mpc.footprint_margin if mode == "discs" else sc.robot.footprint_radius + DEFAULT_MARGIN_M
+    assert ctrl.map.grid.inflation == pytest.approx(expected, abs=1e-12)
+    if inflation is not None:
+        assert expected == pytest.approx(inflation, abs=5e-4)
+    # the hand-made scan in a fresh map of the same construction, sensor at (0, 0) facing +x
+    from sanav_mj.mapping.sensed_map import SensedMap, SensedMapConfig
+
+    m = SensedMap((-1.0, -2.5, 4.0, 2.5), ctrl.map.grid.inflation, (0.0, 0.0), SensedMapConfig(resolution=0.05))
+    m.integrate(np.zeros(3), *_wall_scan(2.025))
+    g = m.grid
+    i0 = int(math.floor((0.0 - g.origin[1]) / g.resolution))  # the row of y in [0, 0.05)
+    safe_row = np.flatnonzero(g.safe()[i0])
+    assert safe_row.max() == last_safe
+    wall_col = int(math.floor((2.025 - g.origin[0]) / g.resolution))
+    assert wall_col == 60 and g.states()[i0, wall_col] != 0  # the return's cell is known (occupied)
+
+
+def _discs_checked_run(scenario: str, seed: int):
+    """A discs-mode lidar run checking, at every solved step, each disc centre's stage boxes
+    against the step's safe grid and the true grid (same inflation and cells)."""
+    sc = load_scenario(scenario)
+    ctrl = lidar_controller(sc, DISCS)
+    mpc = ctrl._spare  # the SA-MPC the first plan adopts (built before the loop)
+    assert mpc is not None and mpc.discs is not None
+    seen = {}
+    orig = mpc.constrain
+
+    def constrain(x0, x_ref, u_ref, guess):
+        con = orig(x0, x_ref, u_ref, guess)
+        seen["guess0"], seen["bs"] = guess[0].copy(), con.context[3]
+        return con
+
+    mpc.constrain = constrain
+    truth = prepare(sc, controller=lidar_spec(DISCS)).grid
+    assert truth.resolution == ctrl.map.grid.resolution
+    assert truth.inflation == pytest.approx(ctrl.map.grid.inflation, abs=1e-12)
+    checked, first_plan = [], []
+
+    def on_step(step, trace):
+        g = ctrl.map.grid  # the episode's map (reset makes a new one)
+        safe = g.safe()
+        rec = ctrl.records[step]
+        if rec.replan == "initial":
+            # every disc centre of the pose the plan was made from stands in a safe cell
+            pts = mpc.discs.centres(ctrl.estimate[None])[0]
+            j = np.floor((pts[:, 0] - g.origin[0]) / g.resolution).astype(int)
+            i = np.floor((pts[:, 1] - g.origin[1]) / g.resolution).astype(int)
+            first_plan.append(bool(safe[i, j].all()))
+        for r in rec.corridor_rects:
+            cells = _cells_of(r, g.origin, g.resolution, g.shape)
+            assert safe[cells].all(), f"step {step}: corridor rectangle {r} holds unobserved or unsafe cells"
+            assert not truth.occupied[cells].any(), f"step {step}: corridor rectangle {r} is not free in truth"
+        if trace.status[step] in ("ok", "inexact") and "bs" in seen:
+            centres0 = mpc.discs.centres(seen["guess0"][None])[0]
+            for d, boxes in enumerate(seen["bs"]):
+                p0 = centres0[d]
+                below = np.maximum(boxes[0, :2] - p0, 0.0)
+                above = np.maximum(p0 - boxes[0, 2:], 0.0)
+                for b in boxes[1:] + np.concatenate([below, -above]):
+                    cells = _cells_of(b, g.origin, g.resolution, g.shape)
+                    assert safe[cells].all(), f"step {step}: disc {d} stage box {b} holds unobserved or unsafe cells"
+                    assert not truth.occupied[cells].any(), f"step {step}: disc {d} stage box {b} not free in truth"
+            checked.append(step)
+        seen.pop("bs", None)
+
+    out = run_scenario(sc, seed=seed, sensing="lidar", controller_spec=DISCS, controller_obj=ctrl, on_step=on_step)
+    return out, ctrl, checked, first_plan
+
+
+def test_discs_lidar_run_keeps_every_disc_centre_in_observed_free_space():
+    out, ctrl, checked, first_plan = _discs_checked_run("u_shape", seed=0)
+    doc = out.document
+    assert doc["success"] and doc["collisions"] == 0
+    assert len(checked) > 50  # the per-disc check ran on the solved steps
+    assert first_plan == [True]
+    assert doc["sensing"] == "lidar" and doc["footprint"]["mode"] == "discs"
+    assert doc["footprint"]["refine"] == 1  # the sensed map is one grid
+    assert ctrl.map.grid.inflation == pytest.approx(robot_footprint(load_scenario("u_shape").model).discs(3)[1] + 0.05)
+
+
+def test_discs_lidar_refuses_known_map_only_settings():
+    from dataclasses import replace
+
+    sc = load_scenario("single_rect")
+    for change in ({"footprint_grow": 1.0}, {"footprint_route": "pose"}):
+        spec = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, **change))
+        with pytest.raises(ValueError, match="footprint_grow=0 and footprint_route='corridor'"):
+            lidar_controller(sc, spec)
+
+
+def test_lidar_run_from_a_refined_prepared_map_uses_the_base_cells():
+    prep = prepare("single_rect", controller=DISCS)  # refined: 0.025 m cells where narrow
+    assert prep.grid.resolution == pytest.approx(0.025)
+    out = run_scenario(prep, seed=0, sensing="lidar", controller_spec=DISCS, time_limit_s=0.3)
+    assert out.sensed.map.grid.resolution == 0.05
+
+
+def test_discs_mode_counts_the_robot_in_safe_space_only_when_every_disc_centre_is():
+    """The wall of the hand-made scan above: cells of columns <= 53 (x < 1.70 m) are safe in
+    the discs map. A robot at x = 1.60 m facing the wall has its centre there (column 52) but
+    its front disc centre at 1.767 m (column 55) is not: not in safe space (no first plan yet,
+    the body is cleared again); at x = 1.45 m every centre is (columns 45, 49, 52)."""
+    from sanav_mj.mapping.sensed_map import SensedMap, SensedMapConfig
+
+    sc = load_scenario("single_rect")
+    ctrl = lidar_controller(sc, DISCS)
+    m = SensedMap((-1.0, -2.5, 4.0, 2.5), ctrl.map.grid.inflation, (0.0, 0.0), SensedMapConfig(resolution=0.05))
+    m.integrate(np.zeros(3), *_wall_scan(2.025))
+    ctrl.map = m
+    assert not ctrl._own_safe(np.array([1.60, 0.025, 0.0]))
+    assert ctrl._own_safe(np.array([1.45, 0.025, 0.0]))
+    # the same position sideways (discs at y +- 0.167 m, all at x = 1.60 m): safe
+    assert ctrl._own_safe(np.array([1.60, 0.025, math.pi / 2]))
+    # the disc mode (its own map) checks the position alone
+    disc = lidar_controller(sc)
+    disc.map = m
+    assert disc._own_safe(np.array([1.60, 0.025, 0.0]))
+
+
+def test_discs_lidar_brakes_keeping_its_heading():
+    """In discs mode with the lidar the braking fallback ramps speed and yaw rate to 0 at the
+    rate bounds (no steering candidate); the disc mode keeps SA-MPC's steering brake."""
+    from sanav_mj.control.sa_mpc import SAMPC
+    from sanav_mj.control.sensed_footprint import StraightBrakeSAMPC
+
+    sc = load_scenario("single_rect")
+    mpc = lidar_controller(sc, DISCS)._spare
+    assert type(mpc) is StraightBrakeSAMPC
+    assert type(lidar_controller(sc)._spare) is SAMPC
+    a, al = mpc._rate_step  # [m/s, rad/s] per step
+    mpc._u_prev = np.array([4.5 * a, -2.5 * al])
+    u = mpc.brake_plan(np.array([0.0, 0.0, 0.3]))
+    assert u.shape == (mpc.N, 2)
+    np.testing.assert_allclose(u[:6, 0], np.array([3.5, 2.5, 1.5, 0.5, 0.0, 0.0]) * a, rtol=0, atol=8 * np.finfo(float).eps)
+    np.testing.assert_allclose(u[:4, 1], np.array([-1.5, -0.5, 0.0, 0.0]) * al, rtol=0, atol=8 * np.finfo(float).eps)
+    assert not u[6:].any()
+
+
+@pytest.mark.parametrize("lost, resolution, width", [
+    (0.099, 0.05, 0.25),   # 2 lost = 0.198 m: strips of up to 4 cells (0.20 m) are narrow
+    (0.100, 0.05, 0.25),   # 0.20 m exactly: 4 cells leave the circumscribed disc nothing
+    (0.101, 0.05, 0.30),
+    (0.0, 0.05, 0.0),      # the circumscribed-disc map itself: nothing is narrower
+    (-0.01, 0.05, 0.0),
+])
+def test_sensed_narrow_width_counts_whole_cells(lost, resolution, width):
+    from sanav_mj.eval.episode import sensed_narrow_width
+
+    assert sensed_narrow_width(lost, resolution) == pytest.approx(width, abs=4 * np.finfo(float).eps)
+
+
+def test_discs_lidar_controller_narrow_width():
+    sc = load_scenario("single_rect")
+    ctrl = lidar_controller(sc, DISCS)
+    lost = sc.robot.footprint_radius + DEFAULT_MARGIN_M - ctrl.map.grid.inflation  # 0.0985 m
+    assert 0.0975 < lost < 0.1
+    assert ctrl.config.narrow_width == pytest.approx(0.25, abs=1e-15) == ctrl.body.narrow_width
+    assert lidar_controller(sc).config.narrow_width == 0.0
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"narrow_width": -0.1}, "narrow_width"),
+    ({"narrow_width": float("inf")}, "narrow_width"),
+    ({"refresh": 1}, "refresh"),
+    ({"straight_brake": "yes"}, "straight_brake"),
+])
+def test_sensing_config_discs_fields_are_validated(kwargs, match):
+    from sanav_mj.control.sensing import SensingConfig
+
+    with pytest.raises(ValueError, match=match):
+        SensingConfig(**kwargs)
