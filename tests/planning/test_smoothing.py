@@ -232,3 +232,24 @@ def test_spline_at_collocation_is_the_call_bit_for_bit():
     for lam in (1e-3, 1e-1):
         spl = prob.solve(lam)
         assert np.array_equal(spl.at_collocation(*chk), spl(uc))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_solve_through_dpbsv_equals_scipy_solveh_banded(seed):
+    """SmoothingProblem.solve calls LAPACK dpbsv directly; scipy.linalg.solveh_banded (the
+    reference: the same routine behind argument checks) gives the same coefficients bit for
+    bit on seeded random data, weights and smoothing weights."""
+    from scipy.linalg import solveh_banded
+
+    rng = np.random.default_rng(seed)
+    m = int(rng.integers(20, 200))
+    u = np.linspace(0.0, rng.uniform(1.0, 12.0), m)
+    p = np.cumsum(rng.normal(0.0, 0.1, (m, 2)), axis=0)
+    prob = SmoothingProblem(u, p, rng.uniform(0.1, 0.5))
+    for lam, w in ((rng.uniform(0.01, 2.0), None), (rng.uniform(0.01, 2.0), rng.uniform(0.5, 8.0, m))):
+        spl = prob.solve(lam, w)
+        btb, btp = (prob.btb, prob.btp) if w is None else prob._assemble(w)
+        sol = solveh_banded(btb + lam * prob.gram, np.hstack([btp, prob.H]), check_finite=False)
+        x, z = sol[:, :2], sol[:, 2:]
+        mu = np.linalg.solve(prob.H.T @ z, prob.H.T @ x - prob.d)
+        assert np.array_equal(spl.coeffs, x - z @ mu)
