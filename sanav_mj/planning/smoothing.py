@@ -48,6 +48,7 @@ import numpy as np
 from scipy.linalg import LinAlgError
 from scipy.linalg.lapack import dpbsv
 
+from sanav_mj.planning import assign_kernel
 from sanav_mj.planning.corridor import CONTAIN_TOL
 
 DEGREE = 3
@@ -309,7 +310,7 @@ class SmoothingProblem:
 
 
 def corridor_assignment(
-    corridor_rects: np.ndarray, points: np.ndarray, hint: np.ndarray, band: int = 2
+    corridor_rects: np.ndarray, points: np.ndarray, hint: np.ndarray, band: int = 2, use_kernel: bool = True
 ) -> tuple[np.ndarray, np.ndarray]:
     """Monotone assignment of points (in curve order) to corridor positions.
 
@@ -325,12 +326,18 @@ def corridor_assignment(
         hint: (K,) int non-decreasing expected corridor position of each point.
         band: how many positions either side of the hint are tried for a point outside its
             hint rectangle.
+        use_kernel: False forces the NumPy reference (else the compiled loop of
+            :mod:`~sanav_mj.planning.assign_kernel` when available; the same results).
 
     Returns:
         ``(pos, ok)``: (K,) int corridor position assigned and (K,) bool, False where the
         point lies outside the assigned rectangle (outside the corridor, or only in a
         rectangle that would make the assignment go backwards).
     """
+    if use_kernel:
+        fast = assign_kernel.assign(corridor_rects, points, hint, band, CONTAIN_TOL)
+        if fast is not None:
+            return fast
     x = points[:, 0]
     y = points[:, 1]
     tol = CONTAIN_TOL

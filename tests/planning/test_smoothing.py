@@ -253,3 +253,34 @@ def test_solve_through_dpbsv_equals_scipy_solveh_banded(seed):
         x, z = sol[:, :2], sol[:, 2:]
         mu = np.linalg.solve(prob.H.T @ z, prob.H.T @ x - prob.d)
         assert np.array_equal(spl.coeffs, x - z @ mu)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_compiled_corridor_assignment_equals_the_numpy_reference(seed):
+    """The compiled corridor assignment (sanav_mj.planning.assign_kernel) gives the same
+    positions and flags as the NumPy reference on seeded random corridors and points: points
+    inside their hint rectangle, in a neighbour within the band, only behind (assignment
+    would go backwards), outside everything, on rectangle edges (within the tolerance) and
+    NaN; with bands 0-3."""
+    from sanav_mj.planning import assign_kernel
+
+    if not assign_kernel.kernel_available():
+        pytest.skip("no C compiler: only the NumPy path exists")
+    rng = np.random.default_rng(seed)
+    C = int(rng.integers(1, 12))
+    lo = np.cumsum(rng.uniform(0.2, 0.8, (C, 2)), axis=0) - rng.uniform(0.0, 0.5, (C, 2))
+    rects = np.hstack([lo, lo + rng.uniform(0.3, 1.2, (C, 2))])
+    K = int(rng.integers(1, 400))
+    hint = np.sort(rng.integers(0, C, K)).astype(np.int64)
+    r = rects[hint]
+    pts = rng.uniform(r[:, :2] - 0.4, r[:, 2:] + 0.4)
+    edge = rng.random(K) < 0.1
+    pts[edge, 0] = r[edge, 2] + rng.choice([-1e-10, 1e-10, 2e-9], edge.sum())  # within / beyond the tolerance
+    pts[rng.random(K) < 0.02] = np.nan
+    for band in (0, 1, 2, 3):
+        ref = corridor_assignment(rects, pts, hint, band, use_kernel=False)
+        fast = corridor_assignment(rects, pts, hint, band)
+        assert fast[0].dtype == ref[0].dtype and np.array_equal(fast[0], ref[0]) and np.array_equal(fast[1], ref[1])
+    inside = (rects[hint, :2] + rects[hint, 2:]) / 2
+    ref, fast = corridor_assignment(rects, inside, hint, use_kernel=False), corridor_assignment(rects, inside, hint)
+    assert fast[0] is hint and ref[0] is hint and fast[1].all()
