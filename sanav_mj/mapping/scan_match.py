@@ -53,7 +53,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sanav_mj.mapping import match_kernel
+import sanav_mj.mapping.match_kernel as match_kernel
 
 __all__ = ["LikelihoodField", "MatchResult", "ScanMatchConfig", "ScanMatcher", "scan_points"]
 

@@ -48,7 +48,7 @@ import numpy as np
 from scipy.linalg import LinAlgError
 from scipy.linalg.lapack import dpbsv
 
-from sanav_mj.planning import assign_kernel
+import sanav_mj.planning.assign_kernel as assign_kernel
 from sanav_mj.planning.corridor import CONTAIN_TOL
 
 DEGREE = 3

@@ -284,3 +284,31 @@ def test_compiled_corridor_assignment_equals_the_numpy_reference(seed):
     inside = (rects[hint, :2] + rects[hint, 2:]) / 2
     ref, fast = corridor_assignment(rects, inside, hint, use_kernel=False), corridor_assignment(rects, inside, hint)
     assert fast[0] is hint and ref[0] is hint and fast[1].all()
+
+
+def test_smoothing_runs_without_the_compiled_kernel():
+    """With SANAV_MJ_NO_CKERNEL=1 a fresh process has no compiled assignment and computes the
+    same assignment (NumPy path) as this process for a seeded random case with points
+    outside their hint rectangles."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np; from sanav_mj.planning import assign_kernel;"
+        "from sanav_mj.planning.smoothing import corridor_assignment;"
+        "assert not assign_kernel.kernel_available();"
+        "rng = np.random.default_rng(3); lo = np.cumsum(rng.uniform(0.2, 0.8, (6, 2)), axis=0);"
+        "rects = np.hstack([lo, lo + 0.7]); hint = np.sort(rng.integers(0, 6, 200));"
+        "pts = rng.uniform(rects[hint, :2] - 0.4, rects[hint, 2:] + 0.4);"
+        "pos, ok = corridor_assignment(rects, pts, hint); print(pos.tolist(), ok.tolist())"
+    )
+    env = dict(os.environ, SANAV_MJ_NO_CKERNEL="1")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    rng = np.random.default_rng(3)
+    lo = np.cumsum(rng.uniform(0.2, 0.8, (6, 2)), axis=0)
+    rects = np.hstack([lo, lo + 0.7])
+    hint = np.sort(rng.integers(0, 6, 200))
+    pts = rng.uniform(rects[hint, :2] - 0.4, rects[hint, 2:] + 0.4)
+    pos, ok = corridor_assignment(rects, pts, hint)
+    assert not ok.all() and out.strip() == f"{pos.tolist()} {ok.tolist()}"
