@@ -53,6 +53,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+import sanav_mj.mapping.match_kernel as match_kernel
+
 __all__ = ["LikelihoodField", "MatchResult", "ScanMatchConfig", "ScanMatcher", "scan_points"]
 
 
@@ -302,17 +304,23 @@ class LikelihoodField:
         """``M`` at the centre of the cell holding each point, (...,) for (..., 2) [m] points."""
         return self.values.reshape(-1)[self._cell(pts)]
 
-    def correspond(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def correspond(self, pts: np.ndarray, use_kernel: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """The hit point nearest to each query point among the hit cells within ``radius_cells``
-        of its cell.
+        of its cell (ties: the first cell of the kernel offsets).
 
         Args:
             pts: (P, 2) [m] query points.
+            use_kernel: False forces the NumPy reference (else the compiled loop of
+                :mod:`~sanav_mj.mapping.match_kernel` when available; the same results).
 
         Returns:
             q: (P, 2) [m] nearest hit points (the query point itself where none is in reach);
             d2: (P,) [m^2] squared distances (inf where none is in reach).
         """
+        if use_kernel:
+            fast = match_kernel.correspond(self, pts)
+            if fast is not None:
+                return fast
         k = self._cell(pts)[:, None] + self._koff[None, :]  # (P, K)
         dx = pts[:, 0, None] - self._px[k]
         dy = pts[:, 1, None] - self._py[k]
@@ -338,9 +346,11 @@ class ScanMatcher:
         config: search window, prior and acceptance settings.
     """
 
-    def __init__(self, field: LikelihoodField, config: ScanMatchConfig = ScanMatchConfig()) -> None:
+    def __init__(self, field: LikelihoodField, config: ScanMatchConfig = ScanMatchConfig(),
+                 use_kernel: bool = True) -> None:
         self.field = field
         self.config = config
+        self.use_kernel = use_kernel  # False: the NumPy reference of every iteration (tests)
         nyaw = int(math.floor(config.yaw_window / config.yaw_step + 1e-9))
         self._dyaw = np.arange(-nyaw, nyaw + 1) * config.yaw_step
         w = config.xy_window
@@ -364,7 +374,7 @@ class ScanMatcher:
         n = np.asarray(normals, dtype=float).reshape(-1, 2)
         cth, sth = math.cos(pose[2]), math.sin(pose[2])
         pw = np.stack([cth * s[:, 0] - sth * s[:, 1] + pose[0], sth * s[:, 0] + cth * s[:, 1] + pose[1]], axis=1)
-        q, d2 = self.field.correspond(pw)
+        q, d2 = self.field.correspond(pw, self.use_kernel)
         r = (cth * n[:, 0] - sth * n[:, 1]) * (pw[:, 0] - q[:, 0]) + (sth * n[:, 0] + cth * n[:, 1]) * (pw[:, 1] - q[:, 1])
         r2 = np.where(d2 <= c.max_pair_m ** 2, np.minimum(r * r, c.max_pair_m ** 2), c.max_pair_m ** 2)
         return float(r2.sum() / c.point_sigma ** 2)
@@ -404,7 +414,7 @@ class ScanMatcher:
         delta = math.inf
         if check is not None:
             chk = np.asarray(check, dtype=float).reshape(3)
-            if np.all(np.isfinite(chk)):
+            if math.isfinite(chk[0]) and math.isfinite(chk[1]) and math.isfinite(chk[2]):
                 delta = self.cost(chk, s, normals) - self.cost(xi, s, normals)
         return MatchResult(xi, status == "ok", status, inliers, len(s), eig, corr, rms, delta)
 
@@ -426,6 +436,24 @@ class ScanMatcher:
         xi = np.array([prior[0] + self._shift[ks, 0], prior[1] + self._shift[ks, 1], yaws[ky]])
         return xi
 
+    def _pair_rows(self, xi: np.ndarray, cth: float, sth: float, s: np.ndarray, normals: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One Gauss-Newton iteration's rows (NumPy reference of
+        :func:`~sanav_mj.mapping.match_kernel.pair_rows`): J (m, 3), res (m,) [m] of the m
+        inliers, inl (P,) bool."""
+        rx = cth * s[:, 0] - sth * s[:, 1]
+        ry = sth * s[:, 0] + cth * s[:, 1]
+        pw = np.stack([rx + xi[0], ry + xi[1]], axis=1)
+        q, d2 = self.field.correspond(pw, use_kernel=False)
+        inl = d2 <= self.config.max_pair_m ** 2
+        nxw = cth * normals[:, 0] - sth * normals[:, 1]
+        nyw = sth * normals[:, 0] + cth * normals[:, 1]
+        res = (nxw * (pw[:, 0] - q[:, 0]) + nyw * (pw[:, 1] - q[:, 1]))[inl]
+        # d res / d xi = (n_x, n_y, n . dp/dyaw) with dp/dyaw = (-ry, rx) (the normal turns
+        # with the scan too; its term n' . (p - q) is second order at the solution: dropped)
+        J = np.stack([nxw, nyw, -nxw * ry + nyw * rx], axis=1)[inl]
+        return J, res, inl
+
     def _refine(self, start: np.ndarray, prior: np.ndarray, s: np.ndarray, normals: np.ndarray, anchor,
                 anchor_sigma) -> tuple[np.ndarray, str, int, np.ndarray, np.ndarray, float]:
         """Point-to-line Gauss-Newton from ``start``, regularised towards ``prior`` (and the
@@ -439,19 +467,17 @@ class ScanMatcher:
         inv_r2 = 1.0 / c.point_sigma ** 2
         H_data = np.zeros((3, 3))
         inl = np.zeros(len(s), dtype=bool)
+        fast = self.use_kernel and match_kernel.kernel_available()
+        if fast:
+            s = np.ascontiguousarray(s, dtype=np.float64)
+            normals = np.ascontiguousarray(normals, dtype=np.float64)
         for _ in range(c.iterations):
             cth, sth = math.cos(xi[2]), math.sin(xi[2])
-            rx = cth * s[:, 0] - sth * s[:, 1]
-            ry = sth * s[:, 0] + cth * s[:, 1]
-            pw = np.stack([rx + xi[0], ry + xi[1]], axis=1)
-            q, d2 = self.field.correspond(pw)
-            inl = d2 <= c.max_pair_m ** 2
-            nxw = cth * normals[:, 0] - sth * normals[:, 1]
-            nyw = sth * normals[:, 0] + cth * normals[:, 1]
-            res = (nxw * (pw[:, 0] - q[:, 0]) + nyw * (pw[:, 1] - q[:, 1]))[inl]
-            # d res / d xi = (n_x, n_y, n . dp/dyaw) with dp/dyaw = (-ry, rx) (the normal turns
-            # with the scan too; its term n' . (p - q) is second order at the solution: dropped)
-            J = np.stack([nxw, nyw, -nxw * ry + nyw * rx], axis=1)[inl]
+            if fast:  # the same arithmetic as below, in one compiled call
+                J, res, inl = match_kernel.pair_rows(self.field, s, normals, float(xi[0]), float(xi[1]), cth, sth,
+                                                     c.max_pair_m ** 2)
+            else:
+                J, res, inl = self._pair_rows(xi, cth, sth, s, normals)
             H_data = inv_r2 * (J.T @ J)
             e = xi - prior
             e[2] = _wrap(e[2])

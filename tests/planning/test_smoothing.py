@@ -232,3 +232,83 @@ def test_spline_at_collocation_is_the_call_bit_for_bit():
     for lam in (1e-3, 1e-1):
         spl = prob.solve(lam)
         assert np.array_equal(spl.at_collocation(*chk), spl(uc))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_solve_through_dpbsv_equals_scipy_solveh_banded(seed):
+    """SmoothingProblem.solve calls LAPACK dpbsv directly; scipy.linalg.solveh_banded (the
+    reference: the same routine behind argument checks) gives the same coefficients bit for
+    bit on seeded random data, weights and smoothing weights."""
+    from scipy.linalg import solveh_banded
+
+    rng = np.random.default_rng(seed)
+    m = int(rng.integers(20, 200))
+    u = np.linspace(0.0, rng.uniform(1.0, 12.0), m)
+    p = np.cumsum(rng.normal(0.0, 0.1, (m, 2)), axis=0)
+    prob = SmoothingProblem(u, p, rng.uniform(0.1, 0.5))
+    for lam, w in ((rng.uniform(0.01, 2.0), None), (rng.uniform(0.01, 2.0), rng.uniform(0.5, 8.0, m))):
+        spl = prob.solve(lam, w)
+        btb, btp = (prob.btb, prob.btp) if w is None else prob._assemble(w)
+        sol = solveh_banded(btb + lam * prob.gram, np.hstack([btp, prob.H]), check_finite=False)
+        x, z = sol[:, :2], sol[:, 2:]
+        mu = np.linalg.solve(prob.H.T @ z, prob.H.T @ x - prob.d)
+        assert np.array_equal(spl.coeffs, x - z @ mu)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_compiled_corridor_assignment_equals_the_numpy_reference(seed):
+    """The compiled corridor assignment (sanav_mj.planning.assign_kernel) gives the same
+    positions and flags as the NumPy reference on seeded random corridors and points: points
+    inside their hint rectangle, in a neighbour within the band, only behind (assignment
+    would go backwards), outside everything, on rectangle edges (within the tolerance) and
+    NaN; with bands 0-3."""
+    from sanav_mj.planning import assign_kernel
+
+    if not assign_kernel.kernel_available():
+        pytest.skip("no C compiler: only the NumPy path exists")
+    rng = np.random.default_rng(seed)
+    C = int(rng.integers(1, 12))
+    lo = np.cumsum(rng.uniform(0.2, 0.8, (C, 2)), axis=0) - rng.uniform(0.0, 0.5, (C, 2))
+    rects = np.hstack([lo, lo + rng.uniform(0.3, 1.2, (C, 2))])
+    K = int(rng.integers(1, 400))
+    hint = np.sort(rng.integers(0, C, K)).astype(np.int64)
+    r = rects[hint]
+    pts = rng.uniform(r[:, :2] - 0.4, r[:, 2:] + 0.4)
+    edge = rng.random(K) < 0.1
+    pts[edge, 0] = r[edge, 2] + rng.choice([-1e-10, 1e-10, 2e-9], edge.sum())  # within / beyond the tolerance
+    pts[rng.random(K) < 0.02] = np.nan
+    for band in (0, 1, 2, 3):
+        ref = corridor_assignment(rects, pts, hint, band, use_kernel=False)
+        fast = corridor_assignment(rects, pts, hint, band)
+        assert fast[0].dtype == ref[0].dtype and np.array_equal(fast[0], ref[0]) and np.array_equal(fast[1], ref[1])
+    inside = (rects[hint, :2] + rects[hint, 2:]) / 2
+    ref, fast = corridor_assignment(rects, inside, hint, use_kernel=False), corridor_assignment(rects, inside, hint)
+    assert fast[0] is hint and ref[0] is hint and fast[1].all()
+
+
+def test_smoothing_runs_without_the_compiled_kernel():
+    """With SANAV_MJ_NO_CKERNEL=1 a fresh process has no compiled assignment and computes the
+    same assignment (NumPy path) as this process for a seeded random case with points
+    outside their hint rectangles."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np; from sanav_mj.planning import assign_kernel;"
+        "from sanav_mj.planning.smoothing import corridor_assignment;"
+        "assert not assign_kernel.kernel_available();"
+        "rng = np.random.default_rng(3); lo = np.cumsum(rng.uniform(0.2, 0.8, (6, 2)), axis=0);"
+        "rects = np.hstack([lo, lo + 0.7]); hint = np.sort(rng.integers(0, 6, 200));"
+        "pts = rng.uniform(rects[hint, :2] - 0.4, rects[hint, 2:] + 0.4);"
+        "pos, ok = corridor_assignment(rects, pts, hint); print(pos.tolist(), ok.tolist())"
+    )
+    env = dict(os.environ, SANAV_MJ_NO_CKERNEL="1")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    rng = np.random.default_rng(3)
+    lo = np.cumsum(rng.uniform(0.2, 0.8, (6, 2)), axis=0)
+    rects = np.hstack([lo, lo + 0.7])
+    hint = np.sort(rng.integers(0, 6, 200))
+    pts = rng.uniform(rects[hint, :2] - 0.4, rects[hint, 2:] + 0.4)
+    pos, ok = corridor_assignment(rects, pts, hint)
+    assert not ok.all() and out.strip() == f"{pos.tolist()} {ok.tolist()}"

@@ -1,0 +1,196 @@
+"""Compiled inner loop of the scan matcher (:mod:`sanav_mj.mapping.scan_match`).
+
+One Gauss-Newton iteration of :meth:`ScanMatcher._refine` spends most of its time in some
+twenty NumPy calls on arrays of about 120 points: the scan turned and moved to the pose,
+the nearest map point of each return among the hit cells within reach of its cell
+(:meth:`LikelihoodField.correspond`), the inlier test, the point-to-line residuals and the
+Jacobian rows. This kernel does that element-wise part in one C call per iteration, with
+the same floating-point operations in the same order as the NumPy code (compiled with
+``-ffp-contract=off``, no fast-math, by :func:`sanav_mj.native.load_c_kernel`), so it gives
+bit-identical results; the sums over points (``J^T J``, ``J^T r``) stay in NumPy.
+
+Without a C compiler, when compiling fails, or with ``SANAV_MJ_NO_CKERNEL=1``, the NumPy
+code of :mod:`~sanav_mj.mapping.scan_match` runs instead: it is the reference
+(``tests/mapping/test_scan_match.py`` compares both on seeded random inputs).
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+
+from sanav_mj.mapping.beam_kernel import NO_KERNEL_ENV, address, buffer_address
+from sanav_mj.native import load_c_kernel
+
+__all__ = ["correspond", "kernel_available", "pair_rows"]
+
+_SOURCE = r"""
+#include <math.h>
+#include <stdint.h>
+
+/* floor(v) as int64 the way NumPy's astype(int64) gives it on x86 (INT64_MIN when out of range). */
+static int64_t to_i64(double v)
+{
+    double f = floor(v);
+    if (!(f >= -9.2e18 && f <= 9.2e18)) return INT64_MIN;
+    return (int64_t)f;
+}
+
+/* Nearest hit point of (x, y) among the cells koff[0..K) around its (clamped) cell: argmin
+   with NumPy's rule (first minimum; a NaN is a minimum). */
+static void nearest(double x, double y, const double *px, const double *py, const int64_t *koff, int64_t K,
+                    double ox, double oy, double h, int64_t pad, int64_t ny, int64_t nx,
+                    double *qx, double *qy, double *best)
+{
+    int64_t r = pad - 2;
+    int64_t j = to_i64((x - ox) / h);
+    int64_t i = to_i64((y - oy) / h);
+    if (j != INT64_MIN) j += pad;
+    if (i != INT64_MIN) i += pad;
+    if (j < r) j = r;
+    if (j > nx - 1 - r) j = nx - 1 - r;
+    if (i < r) i = r;
+    if (i > ny - 1 - r) i = ny - 1 - r;
+    int64_t c = i * nx + j;
+    double bd = 0.0;
+    int64_t bk = 0;
+    for (int64_t k = 0; k < K; ++k) {
+        int64_t idx = c + koff[k];
+        double dx = x - px[idx];
+        double dy = y - py[idx];
+        double d2 = dx * dx + dy * dy;
+        if (k == 0) { bd = d2; bk = idx; continue; }
+        if (isnan(bd)) continue;
+        if (isnan(d2) || d2 < bd) { bd = d2; bk = idx; }
+    }
+    *best = bd;
+    if (isfinite(bd)) { *qx = px[bk]; *qy = py[bk]; }
+    else { *qx = x; *qy = y; }
+}
+
+void sanav_correspond(int64_t P, const double *pts, const double *px, const double *py, const int64_t *koff,
+                      int64_t K, double ox, double oy, double h, int64_t pad, int64_t ny, int64_t nx,
+                      double *q, double *d2)
+{
+    for (int64_t p = 0; p < P; ++p)
+        nearest(pts[2 * p], pts[2 * p + 1], px, py, koff, K, ox, oy, h, pad, ny, nx, &q[2 * p], &q[2 * p + 1],
+                &d2[p]);
+}
+
+/* One Gauss-Newton iteration's rows: returns the number of inliers m; J (m, 3) and res (m,)
+   hold their rows in point order, inl (P,) the inlier flags. */
+int64_t sanav_pair_rows(int64_t P, const double *s, const double *nrm, double x0, double x1, double cth,
+                        double sth, double max2, const double *px, const double *py, const int64_t *koff,
+                        int64_t K, double ox, double oy, double h, int64_t pad, int64_t ny, int64_t nx,
+                        double *J, double *res, uint8_t *inl)
+{
+    int64_t m = 0;
+    for (int64_t p = 0; p < P; ++p) {
+        double s0 = s[2 * p], s1 = s[2 * p + 1];
+        double rx = cth * s0 - sth * s1;
+        double ry = sth * s0 + cth * s1;
+        double wx = rx + x0, wy = ry + x1;
+        double qx, qy, d2;
+        nearest(wx, wy, px, py, koff, K, ox, oy, h, pad, ny, nx, &qx, &qy, &d2);
+        int in = d2 <= max2;
+        inl[p] = (uint8_t)in;
+        if (!in) continue;
+        double n0 = nrm[2 * p], n1 = nrm[2 * p + 1];
+        double nxw = cth * n0 - sth * n1;
+        double nyw = sth * n0 + cth * n1;
+        res[m] = nxw * (wx - qx) + nyw * (wy - qy);
+        J[3 * m] = nxw;
+        J[3 * m + 1] = nyw;
+        J[3 * m + 2] = (-nxw) * ry + nyw * rx;
+        ++m;
+    }
+    return m;
+}
+"""
+
+_lib: ctypes.CDLL | None = None
+_tried = False
+
+
+def _load() -> ctypes.CDLL | None:
+    """The compiled kernel, or None (no compiler, a failed compile, an unwritable cache or
+    ``SANAV_MJ_NO_CKERNEL=1``)."""
+    global _lib, _tried
+    if _tried:
+        return _lib
+    _tried = True
+    lib = load_c_kernel("match", _SOURCE, "the scan-match kernel", NO_KERNEL_ENV)
+    if lib is None:
+        return None
+    i64, dbl, ptr = ctypes.c_int64, ctypes.c_double, ctypes.c_void_p
+    f = lib.sanav_correspond
+    f.restype = None
+    f.argtypes = [i64] + [ptr] * 4 + [i64, dbl, dbl, dbl, i64, i64, i64, ptr, ptr]
+    g = lib.sanav_pair_rows
+    g.restype = i64
+    g.argtypes = [i64, ptr, ptr] + [dbl] * 5 + [ptr] * 3 + [i64, dbl, dbl, dbl, i64, i64, i64, ptr, ptr, ptr]
+    _lib = lib
+    return _lib
+
+
+def kernel_available() -> bool:
+    """Whether the compiled matcher loop is in use (else the NumPy reference)."""
+    return _load() is not None
+
+
+def _field_args(field) -> tuple:
+    ny, nx = field.values.shape
+    return (buffer_address(field._px), buffer_address(field._py), buffer_address(field._koff), len(field._koff),
+            float(field.origin[0]), float(field.origin[1]), field.resolution, field.pad, ny, nx)
+
+
+def correspond(field, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """:meth:`LikelihoodField.correspond` compiled (same results, bit for bit), or None when
+    the kernel is not available.
+
+    Args:
+        field: the :class:`~sanav_mj.mapping.scan_match.LikelihoodField`.
+        pts: (P, 2) [m] query points.
+
+    Returns:
+        q (P, 2) [m] nearest hit points (the query point where none is in reach) and d2 (P,)
+        [m^2] squared distances (inf where none), or None.
+    """
+    lib = _load()
+    if lib is None:
+        return None
+    p = np.ascontiguousarray(pts, dtype=np.float64)
+    P = len(p)
+    q = np.empty((P, 2))
+    d2 = np.empty(P)
+    if P:
+        lib.sanav_correspond(P, address(p), *_field_args(field), address(q), address(d2))
+    return q, d2
+
+
+def pair_rows(field, s: np.ndarray, normals: np.ndarray, x0: float, x1: float, cth: float, sth: float,
+              max2: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The element-wise part of one Gauss-Newton iteration of
+    :meth:`~sanav_mj.mapping.scan_match.ScanMatcher._refine` (scan at the pose, pairs, inliers,
+    residuals, Jacobian rows), or None when the kernel is not available.
+
+    Args:
+        field: the likelihood field; s, normals: (P, 2) C-contiguous float64 return points
+            and normals in the base frame [m]; x0, x1 [m] the pose's position; cth, sth:
+            cosine and sine of its yaw; max2 [m^2]: the squared pairing distance.
+
+    Returns:
+        J (m, 3) Jacobian rows and res (m,) [m] residuals of the m inliers in point order,
+        inl (P,) bool inlier flags.
+    """
+    lib = _load()
+    if lib is None:
+        return None
+    P = len(s)
+    J = np.empty((P, 3))
+    res = np.empty(P)
+    inl = np.empty(P, dtype=bool)
+    m = lib.sanav_pair_rows(P, address(s), address(normals), x0, x1, cth, sth, max2, *_field_args(field),
+                            address(J), address(res), address(inl)) if P else 0
+    return J[:m], res[:m], inl
