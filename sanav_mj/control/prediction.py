@@ -50,6 +50,15 @@ class PredictionDerating:
             never goes below, in (0, 1].
         yaw_floor: fraction of ``w_max`` the yaw-rate bound never goes below, in (0, 1].
         window: steps over which the largest error is kept (>= 1).
+        tighten: shrink the disc rows' stage boxes by the error bound :meth:`PredictionMonitor.tightening`
+            and cap their relaxation (:func:`sanav_mj.control.stages.tighten_relax`, "Tightening
+            by the prediction error" in the module docstring); False: derating only.
+        tighten_extra: [m] constant added to the measured error in the tightening (>= 0): what
+            the error sampled once per period does not see, the disc centres' departure from
+            their chord between samples (< 1 mm, :mod:`sanav_mj.control.footprint`) and one
+            rasteriser-scale millimetre.
+        tighten_max: [m] the tightening never exceeds this (> 0); each box is in any case
+            shrunk by at most a quarter of its width (:func:`~sanav_mj.control.stages.shrink_box`).
     """
 
     free: float = 0.008
@@ -57,6 +66,9 @@ class PredictionDerating:
     floor: float = 0.25
     yaw_floor: float = 0.3
     window: int = 20
+    tighten: bool = True
+    tighten_extra: float = 0.002
+    tighten_max: float = 0.05
 
     def __post_init__(self) -> None:
         ok = all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
@@ -70,6 +82,13 @@ class PredictionDerating:
                 raise ValueError(f"PredictionDerating.{name} must be in (0, 1], got {v!r}")
         if isinstance(self.window, bool) or not (isinstance(self.window, int) and self.window >= 1):
             raise ValueError(f"PredictionDerating.window must be an integer >= 1, got {self.window!r}")
+        if not isinstance(self.tighten, bool):
+            raise ValueError(f"PredictionDerating.tighten must be a bool, got {self.tighten!r}")
+        te, tm = self.tighten_extra, self.tighten_max
+        if not (isinstance(te, (int, float)) and not isinstance(te, bool) and math.isfinite(te) and te >= 0):
+            raise ValueError(f"PredictionDerating.tighten_extra must be a finite number >= 0 m, got {te!r}")
+        if not (isinstance(tm, (int, float)) and not isinstance(tm, bool) and math.isfinite(tm) and tm > 0):
+            raise ValueError(f"PredictionDerating.tighten_max must be a positive finite number of m, got {tm!r}")
 
 
 class PredictionMonitor:
@@ -118,6 +137,15 @@ class PredictionMonitor:
         c = self.config
         x = min(max((self.error - c.free) / (c.stop - c.free), 0.0), 1.0)
         return 1.0 - (1.0 - c.floor) * x
+
+    def tightening(self) -> float:
+        """[m] how much the disc rows' stage boxes are shrunk this step: ``min(error +
+        tighten_extra, tighten_max)`` (:attr:`error` the largest measured one-step error over
+        the window), 0 when ``tighten`` is off."""
+        c = self.config
+        if not c.tighten:
+            return 0.0
+        return min(self.error + c.tighten_extra, c.tighten_max)
 
     def yaw_fraction(self) -> float:
         """Fraction of ``w_max`` the yaw-rate bound keeps: :meth:`fraction`, not below ``yaw_floor``."""

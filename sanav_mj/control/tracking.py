@@ -491,6 +491,16 @@ class TrackingMPC:
             and np.all(z >= prob.fb_lb - self._check_tol) and np.all(z <= prob.fb_ub + self._check_tol)
         )
 
+    def brake_yaw_max(self) -> float:
+        """[rad/s] the largest yaw rate the braking candidates of :meth:`brake_plan` steer
+        towards: ``limits.w_max`` unless overridden."""
+        return self.limits.w_max
+
+    def brake_rollout(self, x0: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """(N+1, 3) the states a braking candidate ``u`` (N, 2) is scored on, from ``x0`` (3,):
+        the model's rollout unless overridden."""
+        return rollout_np(x0, u, self.dt)
+
     def brake_plan(self, x0: np.ndarray) -> np.ndarray:
         """(N, 2) inputs braking at the rate limits, steering to the clearest side.
 
@@ -506,7 +516,7 @@ class TrackingMPC:
         v0, w0 = float(self._u_prev[0]), float(self._u_prev[1])
         k = np.arange(1, n + 1)
         v = np.sign(v0) * np.maximum(abs(v0) - k * a, 0.0)
-        wm = self.limits.w_max
+        wm = self.brake_yaw_max()
         best, best_score = None, -np.inf
         for target in (0.0, 0.5 * wm, -0.5 * wm, wm, -wm):
             w = w0 + np.clip(target - w0, -k * al, k * al)
@@ -520,7 +530,7 @@ class TrackingMPC:
             u = np.stack((v, w), axis=1)
             if not np.all(np.isfinite(x0)):
                 return u
-            xs = rollout_np(x0, u, self.dt)
+            xs = self.brake_rollout(x0, u)
             slack = self.state_clearance(xs[1:])
             if slack is None:
                 return u

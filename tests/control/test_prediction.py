@@ -101,3 +101,61 @@ def test_discs_controller_derates_its_bounds_by_the_measured_error():
 def test_disc_mode_and_discs_without_prediction_have_no_monitor():
     assert _controller(MPCConfig()).adaptation.prediction is None
     assert _controller(MPCConfig(footprint="discs", footprint_prediction=None)).adaptation.prediction is None
+
+
+# ---------------------------------------------------------------- tightening by the error
+
+
+@pytest.mark.parametrize("kw, match", [(dict(tighten=1), "tighten"), (dict(tighten_extra=-0.001), "tighten_extra"),
+                                       (dict(tighten_max=0.0), "tighten_max"),
+                                       (dict(tighten_max=math.inf), "tighten_max")])
+def test_tightening_config_rejects_bad_values(kw, match):
+    with pytest.raises(ValueError, match=match):
+        PredictionDerating(**kw)
+
+
+def test_tightening_is_the_window_maximum_plus_the_constant_capped():
+    cfg = PredictionDerating(window=3, tighten_extra=0.002, tighten_max=0.05)
+    mon = PredictionMonitor(OFFSETS, cfg)
+    assert mon.tightening() == pytest.approx(0.002, abs=1e-15)  # nothing measured: the constant
+    for dy in (0.01, 0.035, 0.004):
+        mon.expect(np.array([1.0, 0.0, 0.0]))
+        mon.observe(np.array([1.0, dy, 0.0]))
+    assert mon.tightening() == pytest.approx(0.037, abs=1e-15)  # max(0.01, 0.035, 0.004) + 0.002
+    for _ in range(2):  # the window (3 steps) forgets 0.035
+        mon.expect(np.array([1.0, 0.0, 0.0]))
+        mon.observe(np.array([1.0, 0.003, 0.0]))
+    assert mon.tightening() == pytest.approx(0.006, abs=1e-15)  # max(0.004, 0.003, 0.003) + 0.002
+    mon.expect(np.array([1.0, 0.0, 0.0]))
+    mon.observe(np.array([1.0, 0.2, 0.0]))
+    assert mon.tightening() == 0.05  # capped
+    off = PredictionMonitor(OFFSETS, replace(cfg, tighten=False))
+    off.expect(np.array([1.0, 0.0, 0.0]))
+    off.observe(np.array([1.0, 0.2, 0.0]))
+    assert off.tightening() == 0.0
+
+
+def test_discs_controller_tightens_its_stage_boxes_by_the_measured_error():
+    cfg = MPCConfig(footprint="discs", adaptation=NO_ADAPTATION,
+                    footprint_prediction=PredictionDerating(free=0.01, stop=0.06, floor=0.25, yaw_floor=0.3,
+                                                            tighten_extra=0.002))
+    ctl = _controller(cfg)
+    steps = _run(ctl, [0.0] * 12 + [0.035, 0.0])
+    # the corridor [0, 6] x [-0.6, 0.6] shrunk by box_margin 0.02, then by the tightening:
+    # nominally the fed pose is the prediction (error 0): 0.002; after the 0.035 m displacement 0.037
+    b = steps[11][1].boxes[1:]
+    np.testing.assert_allclose(b[:, 1], -0.58 + 0.002, atol=1e-12)
+    np.testing.assert_allclose(b[:, 3], 0.58 - 0.002, atol=1e-12)
+    b = steps[13][1].boxes[1:]
+    np.testing.assert_allclose(b[:, 1], -0.58 + 0.037, atol=1e-12)
+    np.testing.assert_allclose(b[:, 3], 0.58 - 0.037, atol=1e-12)
+    # the constraint rows the solver got are these boxes: the accepted plan keeps every disc centre inside
+    assert steps[13][0].ok and steps[13][0].margins[1:].min() >= -ctl._check_tol
+
+
+def test_tightening_off_keeps_the_plain_relaxation():
+    cfg = MPCConfig(footprint="discs", adaptation=NO_ADAPTATION,
+                    footprint_prediction=PredictionDerating(tighten=False))
+    ctl = _controller(cfg)
+    steps = _run(ctl, [0.0] * 4 + [0.035, 0.0])
+    np.testing.assert_allclose(steps[5][1].boxes[1:, 3], 0.58, atol=1e-12)
