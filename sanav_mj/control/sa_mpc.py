@@ -104,10 +104,12 @@ def _disc_constraints(ctl: SAMPC, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.n
         theta = sa_params_of_ids(ctl._rects, DiscCover.area_ids(ctl.disc_chains, ss), ctl.penalty.n_slots,
                                  ctl._q_sa, ctl.config.box_margin)
     ctl._shift_bounds = None
-    if ctl._tight is not None:  # the fallback's shift check reads the boxes as they were without the tightening
-        pts0 = ctl.discs.centres(guess[:1])[0]
+    if ctl._tight is not None:  # the fallback's shift check: the untightened boxes, relaxed only at rest
         chains = ctl.discs.per_disc(ctl._chains())
-        plain = np.array([relax_boxes(stage_boxes(chains[d], ss[d]), pts0[d])[0] for d in range(len(chains))])
+        plain = np.array([stage_boxes(chains[d], ss[d]) for d in range(len(chains))])
+        if ctl._tight[1]:
+            pts0 = ctl.discs.centres(guess[:1])[0]
+            plain = np.array([relax_boxes(plain[d], pts0[d])[0] for d in range(len(chains))])
         ctl._shift_bounds = DiscCover.bounds(plain)
     return Constraints(*DiscCover.bounds(bs), theta, xr, ur, excursion, (ss[c], bs[c], ss, bs))
 
@@ -487,12 +489,14 @@ class SAMPC(TrackingMPC):
 
     def shift_fits(self, prob) -> bool:
         """:meth:`TrackingMPC.shift_fits`; in ``"discs"`` mode with the tightening the position
-        rows are checked against the stage boxes *without* the tightening (relaxed as by
-        :func:`relax_boxes`), grown by ``box_margin`` as always: the shifted plan is followed
-        exactly where it would be without the tightening, i.e. while its disc centres stay in
-        the chain members (the safe areas). A jump of the error bound then does not turn a
-        plan that still fits the safe areas into a braking manoeuvre (measured: the braking
-        steps were where the corner runs left their safe areas)."""
+        rows are checked against the stage boxes *without* the tightening and without
+        relaxation (relaxed towards the measured centres only at rest), grown by
+        ``box_margin`` as always: the shifted plan is followed while its disc centres stay in
+        the chain members (the safe areas), whatever the tightening. A jump of the error bound
+        then does not turn a plan that still fits the safe areas into a braking manoeuvre
+        (the braking steps were where the corner runs left their safe areas), and the shift
+        cannot follow the robot out (an uncapped relaxation here let a nominal run creep 3 cm
+        out over 17 shifted steps, barn_0026)."""
         sb = getattr(self, "_shift_bounds", None)
         if sb is None:
             return super().shift_fits(prob)
