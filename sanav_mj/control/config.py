@@ -268,8 +268,11 @@ class MPCConfig(TrackingConfig):
             stage box is tightened by this much more than ``box_margin`` (the plain box's
             room is kept), for the tracking error under model mismatch.
         footprint_prediction: ``"discs"`` mode: derate the speed and yaw-rate bounds by the
-            one-step prediction error of the disc centres measured online
-            (:class:`sanav_mj.control.prediction.PredictionDerating`); None: off. Unused in
+            one-step prediction error of the disc centres measured online, and (its
+            ``tighten``, on) shrink the disc rows' stage boxes by that error with a relaxation
+            capped at the untightened boxes
+            (:class:`sanav_mj.control.prediction.PredictionDerating`, whose module docstring
+            gives why this bounds the excursion and what it assumes); None: off. Unused in
             ``"disc"`` mode.
     """
 

@@ -267,7 +267,11 @@ class SAMPC(TrackingMPC):
     ``v_max max(derate_floor, 1 - e / excursion_stop)`` for an excursion ``e`` (reached at
     the rate bound from the previous input, so the bounds stay consistent): the further
     out, the slower, which shortens the stopping distance and the distance driven on a
-    wrong model before the next measurement.
+    wrong model before the next measurement. In ``"discs"`` mode (with
+    ``PredictionDerating.tighten``) the disc rows' boxes are in addition shrunk by the
+    measured one-step prediction error and their widening is capped at the untightened
+    boxes while the robot moves (:func:`~sanav_mj.control.stages.tighten_relax`; the
+    argument and its assumptions in :mod:`sanav_mj.control.prediction`).
 
     **Derating by tracking residual, traction limit, pose filter, latency compensation**: the
     plant adaptation's mechanisms, described with their measurements in
