@@ -67,8 +67,8 @@ bounds the next period's error only if the error changes slowly (a turn that sta
 is seen one period late); between samples a disc centre leaves its chord by < 1 mm
 (``tighten_extra`` covers it). **Braking steps are outside the argument**: the braking
 fallback's path is not held to the boxes; it steers at most at the derated yaw rate and its
-candidates are scored on the identified response (``SAMPC.brake_yaw_max``,
-``SAMPC.brake_rollout``), but a robot braking from speed ``v`` travels about
+candidates are scored on the identified response
+(:meth:`~sanav_mj.control.adaptation.PlantAdaptation.brake_response`), but a robot braking from speed ``v`` travels about
 ``v^2 / (2 a_max)`` on a model that mispredicts by ``e`` per period; only the derating's
 lower speed limits that. Nor are the steps from rest. The footprint margin is therefore
 sized from the error measured under the envelope (docs/results.md, "Tight spaces": the

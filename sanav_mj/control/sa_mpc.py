@@ -44,7 +44,7 @@ from sanav_mj.scene import RobotParams
 __all__ = ["SAMPC", "MPCConfig", "StepInfo", "SafeAreaPenalty"]
 
 #: [m/s], [rad/s]: a previous input below both is "at rest" (the capped relaxation then
-#: follows the measured disc centres, :meth:`SAMPC._tightening`).
+#: follows the measured disc centres, :func:`_tightening`).
 REST_V, REST_W = 0.02, 0.05
 
 #: [m] disc-centre distance (position and sweep x yaw) within which the robot has reached a
@@ -92,9 +92,13 @@ def _plan_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
 def _disc_constraints(ctl: SAMPC, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray, guess: np.ndarray) -> Constraints:
     """:meth:`SAMPC.constrain` in ``"discs"`` mode: per-disc stages; exit targets and J_SA
     slots of the chain, or for a pose route (one chain per disc) the planned targets and the
-    areas every disc's assignment spans (:mod:`sanav_mj.control.disc_stages`)."""
-    ctl._tight = ctl._tightening()
-    ss, bs, excursion = ctl.discs.stages(ctl._chains(), guess, ctl._s_prev_d, ctl._check_tol, ctl._tight)
+    areas every disc's assignment spans (:mod:`sanav_mj.control.disc_stages`). With
+    ``PredictionDerating.tighten`` the disc rows' boxes are shrunk by the measured one-step
+    prediction error and their widening is capped at the untightened boxes while the robot
+    moves (:func:`~sanav_mj.control.stages.tighten_relax`; the argument and its assumptions
+    in :mod:`sanav_mj.control.prediction`); the shift check reads :func:`_shift_bounds`."""
+    tight = _tightening(ctl)
+    ss, bs, excursion = ctl.discs.stages(ctl._chains(), guess, ctl._s_prev_d, ctl._check_tol, tight)
     c = ctl.discs.centre
     if ctl.disc_chains is None:
         xr, ur = exit_targets(ctl.chain, ctl._ref_chain[ctl._horizon_idx], x_ref, u_ref, ss[c], x0[:2], float(x0[2]))
@@ -103,15 +107,39 @@ def _disc_constraints(ctl: SAMPC, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.n
         xr, ur = x_ref, u_ref
         theta = sa_params_of_ids(ctl._rects, DiscCover.area_ids(ctl.disc_chains, ss), ctl.penalty.n_slots,
                                  ctl._q_sa, ctl.config.box_margin)
-    ctl._shift_bounds = None
-    if ctl._tight is not None:  # the fallback's shift check: the untightened boxes, relaxed only at rest
-        chains = ctl.discs.per_disc(ctl._chains())
-        plain = np.array([stage_boxes(chains[d], ss[d]) for d in range(len(chains))])
-        if ctl._tight[1]:
-            pts0 = ctl.discs.centres(guess[:1])[0]
-            plain = np.array([relax_boxes(plain[d], pts0[d])[0] for d in range(len(chains))])
-        ctl._shift_bounds = DiscCover.bounds(plain)
-    return Constraints(*DiscCover.bounds(bs), theta, xr, ur, excursion, (ss[c], bs[c], ss, bs))
+    shift = None if tight is None else _shift_bounds(ctl, ss, guess[0], tight[1])
+    return Constraints(*DiscCover.bounds(bs), theta, xr, ur, excursion, (ss[c], bs[c], ss, bs), shift)
+
+
+def _tightening(ctl: SAMPC) -> tuple[float, bool] | None:
+    """``"discs"`` mode: ``(delta, follow)`` for :func:`~sanav_mj.control.stages.tighten_relax`
+    (``delta`` [m] the prediction monitor's
+    :meth:`~sanav_mj.control.prediction.PredictionMonitor.tightening`, ``follow`` while the
+    previous input is at rest), or None (no monitor or ``tighten`` off)."""
+    mon = ctl.adaptation.prediction
+    if mon is None or not mon.config.tighten:
+        return None
+    u = ctl._u_prev
+    return mon.tightening(), bool(abs(u[0]) < REST_V and abs(u[1]) < REST_W)
+
+
+def _shift_bounds(ctl: SAMPC, ss: np.ndarray, x0: np.ndarray, follow: bool) -> tuple[np.ndarray, np.ndarray]:
+    """``"discs"`` mode with the tightening: the row bounds the fallback's shift check reads
+    (:attr:`~sanav_mj.control.tracking.Constraints.shift_bounds`) for the assignments ``ss``
+    (D, N+1) from the state ``x0`` (3,): the stage boxes *without* the tightening and
+    without relaxation (relaxed towards the measured centres only at rest, ``follow``),
+    grown by ``box_margin`` in the check as always. The shifted plan is so followed while
+    its disc centres stay in the chain members (the safe areas), whatever the tightening: a
+    jump of the error bound does not turn a plan that still fits the safe areas into a
+    braking manoeuvre (the braking steps were where the corner runs left their safe areas),
+    and the shift cannot follow the robot out (an uncapped relaxation here let a nominal run
+    creep 3 cm out over 17 shifted steps, barn_0026)."""
+    chains = ctl.discs.per_disc(ctl._chains())
+    plain = np.array([stage_boxes(chains[d], ss[d]) for d in range(len(chains))])
+    if follow:
+        pts0 = ctl.discs.centres(x0[None])[0]
+        plain = np.array([relax_boxes(plain[d], pts0[d])[0] for d in range(len(chains))])
+    return DiscCover.bounds(plain)
 
 
 def _pose_route_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
@@ -267,11 +295,7 @@ class SAMPC(TrackingMPC):
     ``v_max max(derate_floor, 1 - e / excursion_stop)`` for an excursion ``e`` (reached at
     the rate bound from the previous input, so the bounds stay consistent): the further
     out, the slower, which shortens the stopping distance and the distance driven on a
-    wrong model before the next measurement. In ``"discs"`` mode (with
-    ``PredictionDerating.tighten``) the disc rows' boxes are in addition shrunk by the
-    measured one-step prediction error and their widening is capped at the untightened
-    boxes while the robot moves (:func:`~sanav_mj.control.stages.tighten_relax`; the
-    argument and its assumptions in :mod:`sanav_mj.control.prediction`).
+    wrong model before the next measurement. (``"discs"`` mode: :func:`_disc_constraints`.)
 
     **Derating by tracking residual, traction limit, pose filter, latency compensation**: the
     plant adaptation's mechanisms, described with their measurements in
@@ -449,8 +473,6 @@ class SAMPC(TrackingMPC):
         super().reset(pose, u_prev=u_prev, opening_turn=opening_turn)
         self._s_prev: np.ndarray | None = None
         self._s_prev_d: np.ndarray | None = None
-        self._tight: tuple[float, bool] | None = None  # this step's tightening (discs mode)
-        self._shift_bounds: tuple[np.ndarray, np.ndarray] | None = None  # the shift check's row bounds
         if self.discs is not None:
             self._escape.reset()
         self.last: StepInfo | None = None
@@ -480,57 +502,6 @@ class SAMPC(TrackingMPC):
             return Constraints(boxes_c[1:, :2].ravel(), boxes_c[1:, 2:].ravel(), self._sa_params(s), xr, ur,
                                excursion, (s, boxes_c))
         return _disc_constraints(self, x0, x_ref, u_ref, guess)
-
-    def _tightening(self) -> tuple[float, bool] | None:
-        """``"discs"`` mode: ``(delta, follow)`` for :func:`~sanav_mj.control.stages.tighten_relax`
-        (``delta`` [m] the prediction monitor's :meth:`~sanav_mj.control.prediction.PredictionMonitor.tightening`,
-        ``follow`` while the previous input is at rest), or None (no monitor or ``tighten`` off)."""
-        mon = self.adaptation.prediction
-        if mon is None or not mon.config.tighten:
-            return None
-        u = self._u_prev
-        return mon.tightening(), bool(abs(u[0]) < REST_V and abs(u[1]) < REST_W)
-
-    def shift_fits(self, prob) -> bool:
-        """:meth:`TrackingMPC.shift_fits`; in ``"discs"`` mode with the tightening the position
-        rows are checked against the stage boxes *without* the tightening and without
-        relaxation (relaxed towards the measured centres only at rest), grown by
-        ``box_margin`` as always: the shifted plan is followed while its disc centres stay in
-        the chain members (the safe areas), whatever the tightening. A jump of the error bound
-        then does not turn a plan that still fits the safe areas into a braking manoeuvre
-        (the braking steps were where the corner runs left their safe areas), and the shift
-        cannot follow the robot out (an uncapped relaxation here let a nominal run creep 3 cm
-        out over 17 shifted steps, barn_0026)."""
-        sb = getattr(self, "_shift_bounds", None)
-        if sb is None:
-            return super().shift_fits(prob)
-        from dataclasses import replace
-
-        n_pos = len(sb[0])
-        return super().shift_fits(replace(prob, g_lb=np.concatenate((sb[0], prob.g_lb[n_pos:])),
-                                          g_ub=np.concatenate((sb[1], prob.g_ub[n_pos:]))))
-
-    def brake_yaw_max(self) -> float:
-        """``"discs"`` mode with the tightening: the braking candidates steer at most at the
-        derated yaw-rate bound (residual and prediction derating), not ``w_max``; else ``w_max``.
-
-        Measured at the envelope's corner (docs/results.md, "Tight spaces"): every disc-centre
-        excursion beyond 2 cm traced came from braking steps that steered at up to 2.6 rad/s
-        while the derating asked for less, with a plant that turns 22 % more than commanded."""
-        if self._tightening() is None:
-            return self.limits.w_max
-        ad = self.adaptation
-        return min(self.limits.w_max, ad.residual_yaw_cap(), ad.prediction_yaw_cap())
-
-    def brake_rollout(self, x0: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """``"discs"`` mode with the tightening: a braking candidate is scored on the response
-        the actuation monitor identified (inputs scaled by its gains ``(g_v, g_w)``), what the
-        plant will do rather than what the model assumes; else the model's rollout."""
-        from sanav_mj.control.unicycle import rollout_np
-
-        if self._tightening() is None:
-            return rollout_np(x0, u, self.dt)
-        return rollout_np(x0, u * self.adaptation.monitor.gains, self.dt)
 
     def _chains(self):
         """The chain(s) of the disc rows: one per disc for a pose route, else the corridor's."""

@@ -162,27 +162,25 @@ def test_tightening_off_keeps_the_plain_relaxation():
 
 
 def test_braking_candidates_steer_within_the_derated_yaw_rate_on_the_identified_response():
-    from sanav_mj.control.unicycle import rollout_np
-
     cfg = MPCConfig(footprint="discs", adaptation=NO_ADAPTATION,
                     footprint_prediction=PredictionDerating(free=0.01, stop=0.06, floor=0.25, yaw_floor=0.3))
     ctl = _controller(cfg)
     _run(ctl, [0.0] * 3 + [0.035, 0.0])
     w_max = ctl.limits.w_max
-    assert ctl.brake_yaw_max() == pytest.approx(0.625 * w_max, abs=1e-12)  # yaw fraction at 0.035 m
     ctl.adaptation.monitor.gains = np.array([1.1, 1.22])
-    u = np.tile([0.5, 1.0], (ctl.N, 1))
-    x0 = np.array([1.0, 0.1, 0.2])
-    np.testing.assert_array_equal(ctl.brake_rollout(x0, u), rollout_np(x0, u * np.array([1.1, 1.22]), ctl.dt))
+    wm, gains = ctl.adaptation.brake_response(w_max)
+    assert wm == pytest.approx(0.625 * w_max, abs=1e-12)  # yaw fraction at 0.035 m
+    np.testing.assert_array_equal(gains, [1.1, 1.22])
     # the plan it brakes with never asks for more than the derated yaw rate beyond the previous one's ramp
+    x0 = np.array([1.0, 0.1, 0.2])
     plan = ctl.brake_plan(x0)
     assert np.all(np.abs(plan[:, 1]) <= max(0.625 * w_max, abs(ctl.u_prev[1])) + 1e-12)
-    # without the tightening (and in disc mode) the model's rollout and w_max, as before
+    # without the tightening (and in disc mode: no prediction monitor) w_max and the model, as before
     plain = _controller(replace(cfg, footprint_prediction=PredictionDerating(tighten=False)))
     _run(plain, [0.0] * 3 + [0.035, 0.0])
     plain.adaptation.monitor.gains = np.array([1.1, 1.22])
-    assert plain.brake_yaw_max() == w_max
-    np.testing.assert_array_equal(plain.brake_rollout(x0, u), rollout_np(x0, u, plain.dt))
+    assert plain.adaptation.brake_response(w_max) == (w_max, None)
+    assert _controller(MPCConfig()).adaptation.brake_response(w_max) == (w_max, None)
 
 
 @pytest.mark.parametrize("dy", [0.035, 0.585])  # the robot inside its boxes; a disc centre 5 mm beyond them
@@ -194,15 +192,18 @@ def test_the_shift_check_reads_the_untightened_unrelaxed_boxes_while_moving(dy):
     ctl = _controller(cfg)
     _run(ctl, [0.0] * 6 + [dy, 0.0])
     assert abs(ctl.u_prev[0]) > 0.02  # moving: no relaxation in the shift check
-    ss = ctl.last.boxes  # (centre disc) tightened boxes as imposed
-    lb, ub = ctl._shift_bounds
-    ss_assign = ctl._s_prev_d
-    plain = np.array([stage_boxes(ctl.chain, s) for s in ss_assign])
-    want_lb, want_ub = DiscCover.bounds(plain)
+    info = ctl.last
+    con = ctl.constrain(info.guess_states[0], info.x_ref, info.u_ref, info.guess_states)
+    ss, bs = con.context[2], con.context[3]
+    want_lb, want_ub = DiscCover.bounds(np.array([stage_boxes(ctl.chain, s) for s in ss]))
+    lb, ub = con.shift_bounds
     np.testing.assert_array_equal(lb, want_lb)
     np.testing.assert_array_equal(ub, want_ub)
     np.testing.assert_allclose(ub[1::2], 0.58, atol=1e-12)  # corridor half width 0.6 - box_margin 0.02
     if dy < 0.1:  # the rows themselves are tightened by the 0.035 m error + 0.002
-        np.testing.assert_allclose(ss[1:, 3], 0.58 - 0.037, atol=1e-12)
+        np.testing.assert_allclose(con.pos_ub[1::2], 0.58 - 0.037, atol=1e-12)
     else:  # the rows' widening towards the centre beyond them stops at the untightened box
-        assert np.all(ss[1:, 3] <= 0.58 + 1e-12)
+        assert np.all(con.pos_ub[1::2] <= 0.58 + 1e-12)
+    # the problem the fallback checks carries them
+    prob = ctl._pose(info.guess_states[0], con, info.guess, info.guess_states)
+    assert prob.shift_bounds is con.shift_bounds
