@@ -322,7 +322,10 @@ def test_a_goal_that_cannot_be_reached_is_an_outcome_line_and_exit_1(tmp_path, c
     assert out == ("walled / sa-mpc seed 0: no_path: no corridor of safe areas joins the start to the goal; "
                    "the robot did not move\n")
     doc = json.loads(js.read_text())
-    assert doc["reason"] == "no_path" and doc["min_clearance_m"] is None
+    assert doc["reason"] == "no_path" and doc["steps"] == 0
+    # the robot stayed at its start (0, 0): the nearest wall face is x = 4.9, 4.9 m away, beyond
+    # the plant's 2 m distance cap, so the clearance is the cap, a number (DESIGN: not null)
+    assert doc["min_clearance_m"] == 2.0
     code, out, err = _run(["areas", str(scenario)], capsys)
     assert (code, err) == (0, "") and "no path from the start to the goal" in out
 

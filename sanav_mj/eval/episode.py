@@ -106,6 +106,19 @@ def planner_config(robot, spec: ControllerSpec = ControllerSpec()) -> Any:
     )
 
 
+def footprint_fields(spec: ControllerSpec) -> dict[str, Any]:
+    """The run document's ``"footprint"`` entry for ``spec``'s SA-MPC footprint mode: empty
+    for the default ``"disc"`` mode (its documents are unchanged), else ``{"footprint":
+    {"mode", "discs", "margin_m", "route", "refine", "grow_m"}}`` so a discs-mode document
+    says which settings made it (as ``"sensing"`` marks a lidar run)."""
+    mpc = spec.sa_mpc
+    if spec.name != "sa-mpc" or mpc.footprint == "disc":
+        return {}
+    return {"footprint": {"mode": mpc.footprint, "discs": int(mpc.footprint_discs),
+                          "margin_m": float(mpc.footprint_margin), "route": mpc.footprint_route,
+                          "refine": int(mpc.footprint_refine), "grow_m": float(mpc.footprint_grow)}}
+
+
 def footprint_spec(controller: str = "sa-mpc", footprint: str = "disc") -> ControllerSpec:
     """The default :class:`ControllerSpec` of ``controller`` with SA-MPC's
     :attr:`~sanav_mj.control.config.MPCConfig.footprint` set to ``footprint`` (``"disc"``:
@@ -404,6 +417,7 @@ def run_scenario(
         mismatch=mismatch.changed(),
         setup_ms=setup_ms,
     )
+    doc.update(footprint_fields(cspec))
     if recorder is not None:
         recorder.finish(episode, doc)
     return RunOutcome(prep, controller, start, episode, doc, cspec)
@@ -623,6 +637,10 @@ def _no_path_episode(plant, start: np.ndarray) -> Episode:
     from sanav_mj.sim.runner import EpisodeTrace
 
     plant.reset(start)
+    trace = EpisodeTrace()
+    # the robot stays at its start: the run's smallest clearance is the start's (a number, as
+    # DESIGN.md's run JSON has it, not null)
+    trace.clearance.append(plant.clearance())
     return Episode(
         success=False,
         reason="no_path",
@@ -631,6 +649,6 @@ def _no_path_episode(plant, start: np.ndarray) -> Episode:
         collisions=0,
         solver_failures=0,
         final_pose=plant.pose(),
-        trace=EpisodeTrace(),
+        trace=trace,
         wall_time_s=0.0,
     )

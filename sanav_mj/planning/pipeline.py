@@ -23,11 +23,12 @@ import numpy as np
 from sanav_mj.mapping.safe_areas import SafeAreas
 from sanav_mj.planning.corridor import build_graph, oriented_portals, path_length, portal_waypoints, select_corridor
 from sanav_mj.planning.reference import Plan, Reference
-from sanav_mj.planning.smoothing import SafeCurve, SmoothingResult, blend_until_inside, corridor_assignment, safe_curve
+from sanav_mj.planning.smoothing import (SafeCurve, SmoothingResult, blend_until_inside, corridor_assignment,
+                                         interpolate_uniform, safe_curve)
 from sanav_mj.planning.timing import PathProfile, TimedSamples, time_parametrise
 from sanav_mj.scene import RobotParams
 
-__all__ = ["PlannerConfig", "plan", "plan_document"]
+__all__ = ["PlannerConfig", "plan", "plan_document", "route_points"]
 
 
 @dataclass(frozen=True)
@@ -364,6 +365,40 @@ def plan(
         reference=ref,
         info=info,
     )
+
+
+def route_points(areas: SafeAreas, start: np.ndarray, goal: np.ndarray, config: PlannerConfig | None = None
+                 ) -> np.ndarray | None:
+    """Stage 1 of :func:`plan` alone: the portal-waypoint polyline from ``start`` to ``goal``
+    through the corridor, sampled uniformly by arc length (spacing about ``config.spacing``,
+    :func:`~sanav_mj.planning.smoothing.interpolate_uniform`), without smoothing or timing.
+
+    The polyline is the one :func:`plan` smooths (``Plan.waypoints``, the same corridor, start
+    and goal used); it lies in the union of the corridor's rectangles (module docstring of
+    :mod:`sanav_mj.planning.corridor`). For a route that only has to be checked against a
+    map, not followed (the lidar mode's route through unknown space).
+
+    Args:
+        areas: the safe areas; start: (2,) or (3,) [m] (a yaw is ignored); goal: (2,) [m].
+        config: planner settings (search, projection, portal clearance, spacing).
+
+    Returns:
+        (P, 2) [m] samples, P >= 2 (the first at the start used, the last at the goal used),
+        or None when :func:`plan` would give ``no_path``.
+    """
+    cfg = PlannerConfig() if config is None else config
+    start = np.asarray(start, dtype=float).reshape(-1)
+    if start.shape not in ((2,), (3,)) or not np.all(np.isfinite(start)):
+        raise ValueError(f"route_points: start must be 2 or 3 finite numbers, got {start!r}")
+    goal = _vector("goal", goal, 2)
+    if np.asarray(areas.rects).reshape(-1, 4).shape[0] == 0:
+        return None
+    try:
+        graph, choice = _corridor(areas, start[:2], goal, cfg)
+    except _NoPlan:
+        return None
+    route = _waypoints(areas, graph, choice, cfg)
+    return interpolate_uniform(route.waypoints, cfg.spacing)[1]
 
 
 def _timing(t0: float, t_search: float, t_way: float, t_smooth: float, t_end: float) -> dict[str, float]:

@@ -337,7 +337,7 @@ def member_chain(members: np.ndarray, points: np.ndarray, margin: float, tol: fl
         as long as the points do and then moves to the member (overlapping the current one)
         that holds the following points longest. None when some point has no such member.
     """
-    margin = max(0.0, margin - tol)
+    margin = margin - tol  # below tol: the boxes grown by the rest (membership only)
     shrunk = _shrink(members, margin)
     inside = _in_boxes(points, shrunk)
     P = points.shape[0]
@@ -354,7 +354,7 @@ def member_chain(members: np.ndarray, points: np.ndarray, margin: float, tol: fl
         if cand.size:
             inter = np.concatenate((np.maximum(members[cur, :2], members[cand, :2]),
                                     np.minimum(members[cur, 2:], members[cand, 2:])), axis=1)
-            adv = _shrink(inter, max(0.0, margin - tol))  # a corner cut by a few mm between samples
+            adv = _shrink(inter, min(margin, max(0.0, margin - tol)))  # a corner cut by a few mm between samples
             okc = _in_boxes(points[i - 1:i], adv)[0] & np.all(inter[:, 2:] - inter[:, :2] > 1e-9, axis=1)
             cand = cand[okc]
         if cand.size == 0:

@@ -220,6 +220,23 @@ def test_footprint_spec_and_map_config():
     assert map_config(disc_refined, 0.05) == MapConfig(resolution=0.05)
 
 
+def test_a_discs_mode_document_names_its_footprint_settings_and_a_disc_one_is_unchanged():
+    from dataclasses import replace
+
+    from sanav_mj.eval.episode import footprint_fields, footprint_spec
+
+    assert footprint_fields(footprint_spec()) == {} and footprint_fields(footprint_spec("dwa")) == {}
+    discs = footprint_spec("sa-mpc", "discs")
+    mine = replace(discs, sa_mpc=replace(discs.sa_mpc, footprint_discs=4, footprint_margin=0.03,
+                                         footprint_refine=1, footprint_grow=0.5, footprint_route="pose"))
+    assert footprint_fields(mine) == {"footprint": {"mode": "discs", "discs": 4, "margin_m": 0.03, "route": "pose",
+                                                    "refine": 1, "grow_m": 0.5}}
+    assert "footprint" not in run_scenario("single_rect", seed=0, time_limit_s=0.1).document
+    doc = run_scenario("single_rect", seed=0, controller_spec=discs, time_limit_s=0.1).document
+    assert doc["reason"] == "timeout"
+    assert doc["footprint"] == footprint_fields(discs)["footprint"] and doc["footprint"]["mode"] == "discs"
+
+
 def test_prepare_refines_the_map_in_discs_mode_only():
     from dataclasses import replace
 
