@@ -147,6 +147,10 @@ def cmd_closed_loop(args) -> int:
                                    ("footprint_grow", args.grow), ("footprint_grow_tighten", args.grow_tighten),
                                    ("footprint_route", args.route), ("box_margin", args.box_margin))
                  if v is not None}
+        if args.no_tighten:  # the prediction derating without the tightening of the disc rows
+            from sanav_mj.control.prediction import PredictionDerating
+
+            given["footprint_prediction"] = PredictionDerating(tighten=False)
         spec = ControllerSpec("sa-mpc", replace(ControllerSpec().sa_mpc, footprint="discs", **given))
         mpc = spec.sa_mpc
         args.discs, args.margin, args.refine, args.grow = (mpc.footprint_discs, mpc.footprint_margin,
@@ -248,6 +252,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="[m] discs mode: MPCConfig.box_margin (default: the config's)")
     c.add_argument("--narrow-penalty", type=float, default=None,
                    help="[m] discs mode: corridor weight added per edge through a place too narrow to turn")
+    c.add_argument("--no-tighten", action="store_true",
+                   help="discs mode: PredictionDerating(tighten=False) (derating only, no tightening by the error)")
     c.add_argument("--resolution", type=float, default=0.05)
     c.add_argument("--refine", type=int, default=None,
                    help="discs mode: refine the cells by this factor where the free space is narrow")

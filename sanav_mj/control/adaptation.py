@@ -333,6 +333,21 @@ class PlantAdaptation:
         """[m/s] speed bound from the one-step prediction error (:attr:`prediction`; ``v_max`` without it)."""
         return self.v_max if self.prediction is None else self.v_max * self.prediction.fraction()
 
+    def brake_response(self, w_max: float) -> tuple[float, np.ndarray | None]:
+        """What the braking fallback's candidates use: the largest yaw rate [rad/s] they steer
+        towards and the input gains (2,) they are rolled out with (None: the model's).
+
+        ``(w_max, None)`` unless :attr:`prediction` tightens (SA-MPC's ``"discs"`` mode,
+        :mod:`sanav_mj.control.prediction`); then the derated yaw-rate bound (residual and
+        prediction derating) and the monitor's identified gains ``(g_v, g_w)``: what the plant
+        will do rather than what the model assumes. Measured at the envelope's corner
+        (docs/results.md, "Tight spaces"): the disc-centre excursions beyond 2 cm traced in the
+        first tightened version came from braking steps steering at up to 2.6 rad/s while the
+        derating asked for less, on a plant turning 22 % more than commanded."""
+        if self.prediction is None or not self.prediction.config.tighten:
+            return w_max, None
+        return min(w_max, self.residual_yaw_cap(), self.prediction_yaw_cap()), self.monitor.gains.copy()
+
     def prediction_yaw_cap(self) -> float:
         """[rad/s] yaw-rate bound from the one-step prediction error (``w_max`` without it)."""
         return self.w_max if self.prediction is None else self.w_max * self.prediction.yaw_fraction()

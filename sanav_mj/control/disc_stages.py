@@ -39,6 +39,7 @@ from sanav_mj.control.stages import (
     first_candidates,
     relax_boxes,
     stage_boxes,
+    tighten_relax,
 )
 
 def member_chain_of(areas, members: np.ndarray, margin: float) -> CorridorChain:
@@ -156,12 +157,14 @@ class DiscCover:
         return [chain] * len(self.offsets)
 
     def stages(self, chain, xs: np.ndarray, s_prev: np.ndarray | None,
-               tol: float) -> tuple[np.ndarray, np.ndarray, float]:
+               tol: float, tighten: tuple[float, bool] | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """Per disc centre of the states ``xs`` (N+1, 3): assignments (D, N+1) (each anchored
         on its previous one, ``s_prev`` (D, N+1) or None), stage boxes (D, N+1, 4) [m] relaxed
         around its stage-0 centre, and the largest excursion [m] of a stage-0 centre.
         ``chain``: one :class:`CorridorChain` for every disc, or a list of one per disc (a
-        pose route's per-disc corridors, ``Plan.disc_corridors``)."""
+        pose route's per-disc corridors, ``Plan.disc_corridors``). ``tighten``: ``(delta,
+        follow)``, the boxes tightened by ``delta`` [m] with a capped relaxation
+        (:func:`~sanav_mj.control.stages.tighten_relax`); None: :func:`relax_boxes`."""
         pts = self.centres(xs)
         chains = self.per_disc(chain)
         ss, bs, exc = [], [], 0.0
@@ -169,7 +172,10 @@ class DiscCover:
             chain = chains[d]
             cand = first_candidates(len(chain), None if s_prev is None else s_prev[d])
             s = assign_stages(chain, pts[:, d], cand, tol=tol)
-            b, e = relax_boxes(stage_boxes(chain, s), pts[0, d])
+            if tighten is None:
+                b, e = relax_boxes(stage_boxes(chain, s), pts[0, d])
+            else:
+                b, e = tighten_relax(stage_boxes(chain, s), pts[0, d], *tighten)
             ss.append(s)
             bs.append(b)
             exc = max(exc, e)

@@ -25,6 +25,54 @@ centre outside every safe area fell from 13.0 to 2.6 cm, the smallest true clear
 footprint rose from 0.1 cm (one collision) to 3.6 cm, 82 / 100 reach the goal (77 before),
 at a mean time of 17.4 s instead of 12.1 s. With ``free`` 0.01 / ``stop`` 0.06 the corner
 still weaved at 1.3 m/s and a grown-chain run collided.
+
+**Tightening by the prediction error** (``PredictionDerating.tighten``, on by default;
+:func:`sanav_mj.control.stages.tighten_relax`, used by SA-MPC's ``"discs"`` mode). The same
+error also sizes the constraints. For one disc centre let ``S_k`` be its stage box at stage k
+(its chain member shrunk by ``box_margin``, at most a quarter of its width) and
+``delta = min(e_hat + tighten_extra, tighten_max)`` the tightening, ``e_hat`` the largest
+error measured over the window (:meth:`PredictionMonitor.tightening`). The rows of stages
+1..N get ``T_k = shrink(S_k, delta)`` (again at most a quarter width per side). When the
+measured centre lies outside ``T_0`` the boxes of stages 1..N are widened towards it as
+before (:func:`~sanav_mj.control.stages.relax_boxes`: a plan may stay where the robot is),
+but **never beyond** ``S_k`` while the robot moves; at rest (previous input below 0.02 m/s
+and 0.05 rad/s: a unicycle cannot move sideways in one period) the widening follows the
+measured centre as before. Nominally ``e_hat`` is about 1 mm, so every box loses about
+3 mm per side; under the envelope's corner it reads 1-3 cm.
+
+Why the excursion is then bounded. Let ``e`` be the *true* error of the next period: the
+distance between where a disc centre will be when the next command takes effect and where
+the applied plan's stage 1 puts it.
+
+1. *No accumulation.* While the robot moves, every accepted plan keeps each disc centre of
+   stages 1..N inside ``S_k`` (the capped widening cannot leave it), and the fallback
+   follows a shifted plan only while its centres stay within ``box_margin`` of the
+   untightened boxes, i.e. inside the safe areas. So one period after such a step the true
+   centre lies within ``e`` of a safe area, whatever the excursion before: the uncapped
+   relaxation let each period add its error to the last (``x_{k+1} <= x_k + e``; the plan
+   followed the measured robot out), the cap does not.
+2. *Usually none.* If the measured centre was inside ``T_0`` (no widening) and ``e <=
+   delta``, the true centre one period later lies in ``S_1``: inside the safe area with
+   ``box_margin`` to spare.
+3. *No contact.* The map is inflated by the disc radius plus ``footprint_margin`` and a safe
+   area holds only cells free of it, so a disc centre within ``footprint_margin`` of a safe
+   area keeps its disc, and with it the footprint part it covers, clear. With 1., a step
+   after an accepted or shifted plan cannot touch while ``e <= footprint_margin`` (``<=
+   footprint_margin + box_margin`` where the box is at least ``4 box_margin`` wide).
+
+What this assumes and does not cover, honestly: ``e`` is the true error, while the monitor
+measures the *estimated* state (pose filter, latency compensation with the identified delay)
+against the prediction, so the estimation error enters both ways; the window's maximum
+bounds the next period's error only if the error changes slowly (a turn that starts to slip
+is seen one period late); between samples a disc centre leaves its chord by < 1 mm
+(``tighten_extra`` covers it). **Braking steps are outside the argument**: the braking
+fallback's path is not held to the boxes; it steers at most at the derated yaw rate and its
+candidates are scored on the identified response
+(:meth:`~sanav_mj.control.adaptation.PlantAdaptation.brake_response`), but a robot braking from speed ``v`` travels about
+``v^2 / (2 a_max)`` on a model that mispredicts by ``e`` per period; only the derating's
+lower speed limits that. Nor are the steps from rest. The footprint margin is therefore
+sized from the error measured under the envelope (docs/results.md, "Tight spaces": the
+largest excursion of every run and where it came from), not guaranteed by this argument.
 """
 
 from __future__ import annotations
@@ -50,6 +98,15 @@ class PredictionDerating:
             never goes below, in (0, 1].
         yaw_floor: fraction of ``w_max`` the yaw-rate bound never goes below, in (0, 1].
         window: steps over which the largest error is kept (>= 1).
+        tighten: shrink the disc rows' stage boxes by the error bound :meth:`PredictionMonitor.tightening`
+            and cap their relaxation (:func:`sanav_mj.control.stages.tighten_relax`, "Tightening
+            by the prediction error" in the module docstring); False: derating only.
+        tighten_extra: [m] constant added to the measured error in the tightening (>= 0): what
+            the error sampled once per period does not see, the disc centres' departure from
+            their chord between samples (< 1 mm, :mod:`sanav_mj.control.footprint`) and one
+            rasteriser-scale millimetre.
+        tighten_max: [m] the tightening never exceeds this (> 0); each box is in any case
+            shrunk by at most a quarter of its width (:func:`~sanav_mj.control.stages.shrink_box`).
     """
 
     free: float = 0.008
@@ -57,6 +114,9 @@ class PredictionDerating:
     floor: float = 0.25
     yaw_floor: float = 0.3
     window: int = 20
+    tighten: bool = True
+    tighten_extra: float = 0.002
+    tighten_max: float = 0.05
 
     def __post_init__(self) -> None:
         ok = all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
@@ -70,6 +130,13 @@ class PredictionDerating:
                 raise ValueError(f"PredictionDerating.{name} must be in (0, 1], got {v!r}")
         if isinstance(self.window, bool) or not (isinstance(self.window, int) and self.window >= 1):
             raise ValueError(f"PredictionDerating.window must be an integer >= 1, got {self.window!r}")
+        if not isinstance(self.tighten, bool):
+            raise ValueError(f"PredictionDerating.tighten must be a bool, got {self.tighten!r}")
+        te, tm = self.tighten_extra, self.tighten_max
+        if not (isinstance(te, (int, float)) and not isinstance(te, bool) and math.isfinite(te) and te >= 0):
+            raise ValueError(f"PredictionDerating.tighten_extra must be a finite number >= 0 m, got {te!r}")
+        if not (isinstance(tm, (int, float)) and not isinstance(tm, bool) and math.isfinite(tm) and tm > 0):
+            raise ValueError(f"PredictionDerating.tighten_max must be a positive finite number of m, got {tm!r}")
 
 
 class PredictionMonitor:
@@ -118,6 +185,15 @@ class PredictionMonitor:
         c = self.config
         x = min(max((self.error - c.free) / (c.stop - c.free), 0.0), 1.0)
         return 1.0 - (1.0 - c.floor) * x
+
+    def tightening(self) -> float:
+        """[m] how much the disc rows' stage boxes are shrunk this step: ``min(error +
+        tighten_extra, tighten_max)`` (:attr:`error` the largest measured one-step error over
+        the window), 0 when ``tighten`` is off."""
+        c = self.config
+        if not c.tighten:
+            return 0.0
+        return min(self.error + c.tighten_extra, c.tighten_max)
 
     def yaw_fraction(self) -> float:
         """Fraction of ``w_max`` the yaw-rate bound keeps: :meth:`fraction`, not below ``yaw_floor``."""

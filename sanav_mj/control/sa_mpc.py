@@ -43,6 +43,10 @@ from sanav_mj.scene import RobotParams
 
 __all__ = ["SAMPC", "MPCConfig", "StepInfo", "SafeAreaPenalty"]
 
+#: [m/s], [rad/s]: a previous input below both is "at rest" (the capped relaxation then
+#: follows the measured disc centres, :func:`_tightening`).
+REST_V, REST_W = 0.02, 0.05
+
 #: [m] disc-centre distance (position and sweep x yaw) within which the robot has reached a
 #: stop of a pose route's reference (see :meth:`SAMPC.reference`).
 STOP_REACHED_M = 0.02
@@ -88,8 +92,13 @@ def _plan_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
 def _disc_constraints(ctl: SAMPC, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray, guess: np.ndarray) -> Constraints:
     """:meth:`SAMPC.constrain` in ``"discs"`` mode: per-disc stages; exit targets and J_SA
     slots of the chain, or for a pose route (one chain per disc) the planned targets and the
-    areas every disc's assignment spans (:mod:`sanav_mj.control.disc_stages`)."""
-    ss, bs, excursion = ctl.discs.stages(ctl._chains(), guess, ctl._s_prev_d, ctl._check_tol)
+    areas every disc's assignment spans (:mod:`sanav_mj.control.disc_stages`). With
+    ``PredictionDerating.tighten`` the disc rows' boxes are shrunk by the measured one-step
+    prediction error and their widening is capped at the untightened boxes while the robot
+    moves (:func:`~sanav_mj.control.stages.tighten_relax`; the argument and its assumptions
+    in :mod:`sanav_mj.control.prediction`); the shift check reads :func:`_shift_bounds`."""
+    tight = _tightening(ctl)
+    ss, bs, excursion = ctl.discs.stages(ctl._chains(), guess, ctl._s_prev_d, ctl._check_tol, tight)
     c = ctl.discs.centre
     if ctl.disc_chains is None:
         xr, ur = exit_targets(ctl.chain, ctl._ref_chain[ctl._horizon_idx], x_ref, u_ref, ss[c], x0[:2], float(x0[2]))
@@ -98,7 +107,39 @@ def _disc_constraints(ctl: SAMPC, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.n
         xr, ur = x_ref, u_ref
         theta = sa_params_of_ids(ctl._rects, DiscCover.area_ids(ctl.disc_chains, ss), ctl.penalty.n_slots,
                                  ctl._q_sa, ctl.config.box_margin)
-    return Constraints(*DiscCover.bounds(bs), theta, xr, ur, excursion, (ss[c], bs[c], ss, bs))
+    shift = None if tight is None else _shift_bounds(ctl, ss, guess[0], tight[1])
+    return Constraints(*DiscCover.bounds(bs), theta, xr, ur, excursion, (ss[c], bs[c], ss, bs), shift)
+
+
+def _tightening(ctl: SAMPC) -> tuple[float, bool] | None:
+    """``"discs"`` mode: ``(delta, follow)`` for :func:`~sanav_mj.control.stages.tighten_relax`
+    (``delta`` [m] the prediction monitor's
+    :meth:`~sanav_mj.control.prediction.PredictionMonitor.tightening`, ``follow`` while the
+    previous input is at rest), or None (no monitor or ``tighten`` off)."""
+    mon = ctl.adaptation.prediction
+    if mon is None or not mon.config.tighten:
+        return None
+    u = ctl._u_prev
+    return mon.tightening(), bool(abs(u[0]) < REST_V and abs(u[1]) < REST_W)
+
+
+def _shift_bounds(ctl: SAMPC, ss: np.ndarray, x0: np.ndarray, follow: bool) -> tuple[np.ndarray, np.ndarray]:
+    """``"discs"`` mode with the tightening: the row bounds the fallback's shift check reads
+    (:attr:`~sanav_mj.control.tracking.Constraints.shift_bounds`) for the assignments ``ss``
+    (D, N+1) from the state ``x0`` (3,): the stage boxes *without* the tightening and
+    without relaxation (relaxed towards the measured centres only at rest, ``follow``),
+    grown by ``box_margin`` in the check as always. The shifted plan is so followed while
+    its disc centres stay in the chain members (the safe areas), whatever the tightening: a
+    jump of the error bound does not turn a plan that still fits the safe areas into a
+    braking manoeuvre (the braking steps were where the corner runs left their safe areas),
+    and the shift cannot follow the robot out (an uncapped relaxation here let a nominal run
+    creep 3 cm out over 17 shifted steps, barn_0026)."""
+    chains = ctl.discs.per_disc(ctl._chains())
+    plain = np.array([stage_boxes(chains[d], ss[d]) for d in range(len(chains))])
+    if follow:
+        pts0 = ctl.discs.centres(x0[None])[0]
+        plain = np.array([relax_boxes(plain[d], pts0[d])[0] for d in range(len(chains))])
+    return DiscCover.bounds(plain)
 
 
 def _pose_route_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
@@ -254,7 +295,7 @@ class SAMPC(TrackingMPC):
     ``v_max max(derate_floor, 1 - e / excursion_stop)`` for an excursion ``e`` (reached at
     the rate bound from the previous input, so the bounds stay consistent): the further
     out, the slower, which shortens the stopping distance and the distance driven on a
-    wrong model before the next measurement.
+    wrong model before the next measurement. (``"discs"`` mode: :func:`_disc_constraints`.)
 
     **Derating by tracking residual, traction limit, pose filter, latency compensation**: the
     plant adaptation's mechanisms, described with their measurements in

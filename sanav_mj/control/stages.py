@@ -447,3 +447,47 @@ def relax_boxes(boxes: np.ndarray, p0: np.ndarray) -> tuple[np.ndarray, float]:
     if p0.ndim == 1:
         return out, float(np.hypot(*(below + above)))
     return out, float(np.max(np.hypot(*(below_p + above_p).T)))
+
+
+def tighten_relax(boxes: np.ndarray, p0: np.ndarray, delta: float, follow: bool = False) -> tuple[np.ndarray, float]:
+    """Stage boxes tightened by the one-step prediction error bound ``delta`` [m], relaxed
+    around the measured points but never beyond the untightened boxes (``"discs"`` SA-MPC
+    with :attr:`~sanav_mj.control.prediction.PredictionDerating.tighten`; see "Tightening by
+    the prediction error" in :mod:`sanav_mj.control.prediction` for why this bounds the
+    excursion).
+
+    ``T = shrink_box(boxes, delta)`` (per side at most a quarter of each box's width). Each
+    side of the boxes of stages 1..N is widened, like :func:`relax_boxes`, by how far the
+    farthest point of ``p0`` lies beyond that side of ``T[0]``, but a widened side never
+    passes the same side of ``boxes`` (the relaxation may use the room the tightening took,
+    no more). With ``follow`` (a robot at rest, which cannot move sideways in one period)
+    the widening is not capped: the plan may stay where the robot is, as with
+    :func:`relax_boxes`.
+
+    Args:
+        boxes: (N+1, 4) [m] stage boxes ``xmin, ymin, xmax, ymax`` (already shrunk by
+            ``box_margin``); row 0 is the box of the measured points.
+        p0: (2,) or (D, 2) [m] the measured point(s) (disc centres) of stage 0.
+        delta: [m] >= 0 tightening.
+        follow: do not cap the widening.
+
+    Returns:
+        The boxes (N+1, 4) [m] (row 0: ``T[0]``) and the excursion [m]: the largest distance
+        of a point of ``p0`` outside ``boxes[0]`` (the untightened box; 0 inside), which
+        the excursion derating reads as before.
+    """
+    boxes = np.asarray(boxes, dtype=float)
+    pts = np.asarray(p0, dtype=float).reshape(-1, 2)
+    below_s = np.maximum(boxes[0, :2] - pts, 0.0)
+    above_s = np.maximum(pts - boxes[0, 2:], 0.0)
+    excursion = float(np.max(np.hypot(*(below_s + above_s).T)))
+    t = shrink_box(boxes, delta) if delta > 0 else boxes.copy()
+    below = np.maximum(t[0, :2] - pts, 0.0).max(axis=0)
+    above = np.maximum(pts - t[0, 2:], 0.0).max(axis=0)
+    out = t.copy()
+    out[1:, :2] -= below
+    out[1:, 2:] += above
+    if not follow:
+        out[1:, :2] = np.maximum(out[1:, :2], boxes[1:, :2])
+        out[1:, 2:] = np.minimum(out[1:, 2:], boxes[1:, 2:])
+    return out, excursion

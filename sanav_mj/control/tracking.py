@@ -70,6 +70,8 @@ class Constraints:
         excursion: [m] how far the measured position lies outside its constraint set
             (derates the speed, see :meth:`PlantAdaptation.speed_cap`); 0 inside.
         context: controller data that follows the plan (e.g. SA-MPC's stage assignment).
+        shift_bounds: (pos_lb, pos_ub) the fallback's shift check reads instead of
+            ``pos_lb``/``pos_ub`` (SA-MPC's untightened boxes), or None.
     """
 
     pos_lb: np.ndarray
@@ -79,6 +81,7 @@ class Constraints:
     u_ref: np.ndarray
     excursion: float = 0.0
     context: Any = None
+    shift_bounds: tuple[np.ndarray, np.ndarray] | None = None
 
 
 @dataclass
@@ -91,6 +94,8 @@ class Problem:
         u_guess: (N, 2) the shifted previous plan; guess: (N+1, 3) its rollout;
         fb_lb, fb_ub: (2N,) input bounds the shifted plan must meet in the fallback.
         y0, y_z0: warm-start multipliers (or None).
+        shift_bounds: (n_pos,) x 2 position-row bounds of the shift check instead of the
+            problem's (:attr:`Constraints.shift_bounds`), or None.
     """
 
     p: np.ndarray
@@ -105,6 +110,7 @@ class Problem:
     fb_ub: np.ndarray
     y0: np.ndarray | None = None
     y_z0: np.ndarray | None = None
+    shift_bounds: tuple[np.ndarray, np.ndarray] | None = None
 
 
 @dataclass
@@ -165,6 +171,11 @@ def _unreachable(ctl, x0: np.ndarray, con: Constraints, prob: Problem) -> int | 
     k = unreachable_stage(x0, prob.z_lb, prob.z_ub, con.pos_lb, con.pos_ub, ctl.dt, ctl._check_tol)
     ctl.unreachable += k is not None
     return k
+
+
+def _with_rows(rows: tuple[np.ndarray, np.ndarray], prob: Problem, n_pos: int) -> tuple[np.ndarray, np.ndarray]:
+    """``prob``'s constraint bounds with the first ``n_pos`` (the position rows) replaced by ``rows``."""
+    return np.concatenate((rows[0], prob.g_lb[n_pos:])), np.concatenate((rows[1], prob.g_ub[n_pos:]))
 
 
 class TrackingMPC:
@@ -414,7 +425,7 @@ class TrackingMPC:
         if self._active is not None and self._active.next == 1 and self._active.y is not None:
             y0 = shift_multipliers(self.ocp, self._active.y, shift_rates=self.shift_rate_multipliers)
             y_z0 = shift_bound_multipliers(self._active.y_z)
-        return Problem(p, z_lb, z_ub, g_lb, g_ub, z0, u_guess, guess, fb_lb, fb_ub, y0, y_z0)
+        return Problem(p, z_lb, z_ub, g_lb, g_ub, z0, u_guess, guess, fb_lb, fb_ub, y0, y_z0, con.shift_bounds)
 
     def _guess_inputs(self) -> np.ndarray:
         """(N, 2) warm start: the rest of the active plan, then braking towards (0, 0)."""
@@ -486,8 +497,9 @@ class TrackingMPC:
         tol = np.full(g.shape, self._check_tol)
         n_pos = len(g) - 2 * (self.N - 1)
         tol[:n_pos] += self.position_slack
+        lb, ub = (prob.g_lb, prob.g_ub) if prob.shift_bounds is None else _with_rows(prob.shift_bounds, prob, n_pos)
         return bool(
-            np.all(g >= prob.g_lb - tol) and np.all(g <= prob.g_ub + tol)
+            np.all(g >= lb - tol) and np.all(g <= ub + tol)
             and np.all(z >= prob.fb_lb - self._check_tol) and np.all(z <= prob.fb_ub + self._check_tol)
         )
 
@@ -506,7 +518,7 @@ class TrackingMPC:
         v0, w0 = float(self._u_prev[0]), float(self._u_prev[1])
         k = np.arange(1, n + 1)
         v = np.sign(v0) * np.maximum(abs(v0) - k * a, 0.0)
-        wm = self.limits.w_max
+        wm, gains = self.adaptation.brake_response(self.limits.w_max)
         best, best_score = None, -np.inf
         for target in (0.0, 0.5 * wm, -0.5 * wm, wm, -wm):
             w = w0 + np.clip(target - w0, -k * al, k * al)
@@ -520,7 +532,7 @@ class TrackingMPC:
             u = np.stack((v, w), axis=1)
             if not np.all(np.isfinite(x0)):
                 return u
-            xs = rollout_np(x0, u, self.dt)
+            xs = rollout_np(x0, u if gains is None else u * gains, self.dt)
             slack = self.state_clearance(xs[1:])
             if slack is None:
                 return u

@@ -101,3 +101,109 @@ def test_discs_controller_derates_its_bounds_by_the_measured_error():
 def test_disc_mode_and_discs_without_prediction_have_no_monitor():
     assert _controller(MPCConfig()).adaptation.prediction is None
     assert _controller(MPCConfig(footprint="discs", footprint_prediction=None)).adaptation.prediction is None
+
+
+# ---------------------------------------------------------------- tightening by the error
+
+
+@pytest.mark.parametrize("kw, match", [(dict(tighten=1), "tighten"), (dict(tighten_extra=-0.001), "tighten_extra"),
+                                       (dict(tighten_max=0.0), "tighten_max"),
+                                       (dict(tighten_max=math.inf), "tighten_max")])
+def test_tightening_config_rejects_bad_values(kw, match):
+    with pytest.raises(ValueError, match=match):
+        PredictionDerating(**kw)
+
+
+def test_tightening_is_the_window_maximum_plus_the_constant_capped():
+    cfg = PredictionDerating(window=3, tighten_extra=0.002, tighten_max=0.05)
+    mon = PredictionMonitor(OFFSETS, cfg)
+    assert mon.tightening() == pytest.approx(0.002, abs=1e-15)  # nothing measured: the constant
+    for dy in (0.01, 0.035, 0.004):
+        mon.expect(np.array([1.0, 0.0, 0.0]))
+        mon.observe(np.array([1.0, dy, 0.0]))
+    assert mon.tightening() == pytest.approx(0.037, abs=1e-15)  # max(0.01, 0.035, 0.004) + 0.002
+    for _ in range(2):  # the window (3 steps) forgets 0.035
+        mon.expect(np.array([1.0, 0.0, 0.0]))
+        mon.observe(np.array([1.0, 0.003, 0.0]))
+    assert mon.tightening() == pytest.approx(0.006, abs=1e-15)  # max(0.004, 0.003, 0.003) + 0.002
+    mon.expect(np.array([1.0, 0.0, 0.0]))
+    mon.observe(np.array([1.0, 0.2, 0.0]))
+    assert mon.tightening() == 0.05  # capped
+    off = PredictionMonitor(OFFSETS, replace(cfg, tighten=False))
+    off.expect(np.array([1.0, 0.0, 0.0]))
+    off.observe(np.array([1.0, 0.2, 0.0]))
+    assert off.tightening() == 0.0
+
+
+def test_discs_controller_tightens_its_stage_boxes_by_the_measured_error():
+    cfg = MPCConfig(footprint="discs", adaptation=NO_ADAPTATION,
+                    footprint_prediction=PredictionDerating(free=0.01, stop=0.06, floor=0.25, yaw_floor=0.3,
+                                                            tighten_extra=0.002))
+    ctl = _controller(cfg)
+    steps = _run(ctl, [0.0] * 12 + [0.035, 0.0])
+    # the corridor [0, 6] x [-0.6, 0.6] shrunk by box_margin 0.02, then by the tightening:
+    # nominally the fed pose is the prediction (error 0): 0.002; after the 0.035 m displacement 0.037
+    b = steps[11][1].boxes[1:]
+    np.testing.assert_allclose(b[:, 1], -0.58 + 0.002, atol=1e-12)
+    np.testing.assert_allclose(b[:, 3], 0.58 - 0.002, atol=1e-12)
+    b = steps[13][1].boxes[1:]
+    np.testing.assert_allclose(b[:, 1], -0.58 + 0.037, atol=1e-12)
+    np.testing.assert_allclose(b[:, 3], 0.58 - 0.037, atol=1e-12)
+    # the constraint rows the solver got are these boxes: the accepted plan keeps every disc centre inside
+    assert steps[13][0].ok and steps[13][0].margins[1:].min() >= -ctl._check_tol
+
+
+def test_tightening_off_keeps_the_plain_relaxation():
+    cfg = MPCConfig(footprint="discs", adaptation=NO_ADAPTATION,
+                    footprint_prediction=PredictionDerating(tighten=False))
+    ctl = _controller(cfg)
+    steps = _run(ctl, [0.0] * 4 + [0.035, 0.0])
+    np.testing.assert_allclose(steps[5][1].boxes[1:, 3], 0.58, atol=1e-12)
+
+
+def test_braking_candidates_steer_within_the_derated_yaw_rate_on_the_identified_response():
+    cfg = MPCConfig(footprint="discs", adaptation=NO_ADAPTATION,
+                    footprint_prediction=PredictionDerating(free=0.01, stop=0.06, floor=0.25, yaw_floor=0.3))
+    ctl = _controller(cfg)
+    _run(ctl, [0.0] * 3 + [0.035, 0.0])
+    w_max = ctl.limits.w_max
+    ctl.adaptation.monitor.gains = np.array([1.1, 1.22])
+    wm, gains = ctl.adaptation.brake_response(w_max)
+    assert wm == pytest.approx(0.625 * w_max, abs=1e-12)  # yaw fraction at 0.035 m
+    np.testing.assert_array_equal(gains, [1.1, 1.22])
+    # the plan it brakes with never asks for more than the derated yaw rate beyond the previous one's ramp
+    x0 = np.array([1.0, 0.1, 0.2])
+    plan = ctl.brake_plan(x0)
+    assert np.all(np.abs(plan[:, 1]) <= max(0.625 * w_max, abs(ctl.u_prev[1])) + 1e-12)
+    # without the tightening (and in disc mode: no prediction monitor) w_max and the model, as before
+    plain = _controller(replace(cfg, footprint_prediction=PredictionDerating(tighten=False)))
+    _run(plain, [0.0] * 3 + [0.035, 0.0])
+    plain.adaptation.monitor.gains = np.array([1.1, 1.22])
+    assert plain.adaptation.brake_response(w_max) == (w_max, None)
+    assert _controller(MPCConfig()).adaptation.brake_response(w_max) == (w_max, None)
+
+
+@pytest.mark.parametrize("dy", [0.035, 0.585])  # the robot inside its boxes; a disc centre 5 mm beyond them
+def test_the_shift_check_reads_the_untightened_unrelaxed_boxes_while_moving(dy):
+    from sanav_mj.control.disc_stages import DiscCover
+    from sanav_mj.control.stages import stage_boxes
+
+    cfg = MPCConfig(footprint="discs", adaptation=NO_ADAPTATION, footprint_prediction=PredictionDerating())
+    ctl = _controller(cfg)
+    _run(ctl, [0.0] * 6 + [dy, 0.0])
+    assert abs(ctl.u_prev[0]) > 0.02  # moving: no relaxation in the shift check
+    info = ctl.last
+    con = ctl.constrain(info.guess_states[0], info.x_ref, info.u_ref, info.guess_states)
+    ss, bs = con.context[2], con.context[3]
+    want_lb, want_ub = DiscCover.bounds(np.array([stage_boxes(ctl.chain, s) for s in ss]))
+    lb, ub = con.shift_bounds
+    np.testing.assert_array_equal(lb, want_lb)
+    np.testing.assert_array_equal(ub, want_ub)
+    np.testing.assert_allclose(ub[1::2], 0.58, atol=1e-12)  # corridor half width 0.6 - box_margin 0.02
+    if dy < 0.1:  # the rows themselves are tightened by the 0.035 m error + 0.002
+        np.testing.assert_allclose(con.pos_ub[1::2], 0.58 - 0.037, atol=1e-12)
+    else:  # the rows' widening towards the centre beyond them stops at the untightened box
+        assert np.all(con.pos_ub[1::2] <= 0.58 + 1e-12)
+    # the problem the fallback checks carries them
+    prob = ctl._pose(info.guess_states[0], con, info.guess, info.guess_states)
+    assert prob.shift_bounds is con.shift_bounds

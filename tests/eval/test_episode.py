@@ -261,8 +261,8 @@ def test_free_cells_reach_the_controller_only_in_discs_mode_with_growth():
     from sanav_mj.eval.episode import footprint_spec
 
     discs = footprint_spec("sa-mpc", "discs")
-    assert discs.sa_mpc.footprint_grow == 0.0  # the discs mode's default: off
-    assert prepare("double_rect", controller=discs).areas.free is None
+    assert discs.sa_mpc.footprint_grow == 1.0  # the discs mode's default
+    assert prepare("double_rect", controller=discs).areas.free.limit == 1.0
     grow = replace(discs, sa_mpc=replace(discs.sa_mpc, footprint_grow=0.5))
     disc_grow = replace(footprint_spec(), sa_mpc=replace(footprint_spec().sa_mpc, footprint_grow=0.5))
     off = replace(discs, sa_mpc=replace(discs.sa_mpc, footprint_grow=0.0))
