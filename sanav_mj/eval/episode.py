@@ -507,15 +507,17 @@ def _chain(first, second):
 
 
 def lidar_spec(cspec: ControllerSpec) -> ControllerSpec:
-    """``cspec`` as a lidar run uses it: in ``"discs"`` mode with ``footprint_refine`` 1 (the
-    sensed map is one grid of the run's resolution: the known map's local refinement is not
-    applied to it, so the run document says refine 1); ``cspec`` itself otherwise."""
+    """``cspec`` as a lidar run uses it: in ``"discs"`` mode with ``footprint_refine`` 1 and
+    ``footprint_grow`` 0 (the sensed map is one grid of the run's resolution: the known map's
+    local refinement and the growth of the chain's boxes to maximal free rectangles of a
+    fixed grid are not applied to it, so the run document says refine 1 and grow 0);
+    ``cspec`` itself otherwise."""
     from dataclasses import replace
 
     mpc = cspec.sa_mpc
-    if mpc.footprint != "discs" or mpc.footprint_refine == 1:
+    if mpc.footprint != "discs" or (mpc.footprint_refine == 1 and mpc.footprint_grow == 0):
         return cspec
-    return replace(cspec, sa_mpc=replace(mpc, footprint_refine=1))
+    return replace(cspec, sa_mpc=replace(mpc, footprint_refine=1, footprint_grow=0.0))
 
 
 def sensed_narrow_width(lost: float, resolution: float) -> float:

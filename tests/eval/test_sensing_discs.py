@@ -127,18 +127,25 @@ def test_discs_lidar_run_keeps_every_disc_centre_in_observed_free_space():
     assert len(checked) > 50  # the per-disc check ran on the solved steps
     assert first_plan == [True]
     assert doc["sensing"] == "lidar" and doc["footprint"]["mode"] == "discs"
-    assert doc["footprint"]["refine"] == 1  # the sensed map is one grid
-    assert ctrl.map.grid.inflation == pytest.approx(robot_footprint(load_scenario("u_shape").model).discs(3)[1] + 0.05)
+    assert doc["footprint"]["refine"] == 1 and doc["footprint"]["grow_m"] == 0.0  # the sensed map is one grid
+    assert ctrl.map.grid.inflation == pytest.approx(
+        robot_footprint(load_scenario("u_shape").model).discs(3)[1] + DISCS.sa_mpc.footprint_margin)
 
 
-def test_discs_lidar_refuses_known_map_only_settings():
+def test_discs_lidar_refuses_or_drops_known_map_only_settings():
     from dataclasses import replace
 
     sc = load_scenario("single_rect")
-    for change in ({"footprint_grow": 1.0}, {"footprint_route": "pose"}):
-        spec = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, **change))
-        with pytest.raises(ValueError, match="footprint_grow=0 and footprint_route='corridor'"):
-            lidar_controller(sc, spec)
+    spec = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_route="pose"))
+    with pytest.raises(ValueError, match="footprint_grow=0 and footprint_route='corridor'"):
+        lidar_controller(sc, spec)
+    # refinement and grown chains are settings of a fixed grid: a lidar run drops them (its
+    # document says so), whatever the discs defaults are
+    grown = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_grow=1.0, footprint_refine=2))
+    used = lidar_spec(grown).sa_mpc
+    assert (used.footprint_grow, used.footprint_refine) == (0.0, 1)
+    assert used == replace(grown.sa_mpc, footprint_grow=0.0, footprint_refine=1)
+    assert lidar_spec(footprint_spec()) == footprint_spec()
 
 
 def test_lidar_run_from_a_refined_prepared_map_uses_the_base_cells():
@@ -204,10 +211,20 @@ def test_sensed_narrow_width_counts_whole_cells(lost, resolution, width):
 
 def test_discs_lidar_controller_narrow_width():
     sc = load_scenario("single_rect")
-    ctrl = lidar_controller(sc, DISCS)
-    lost = sc.robot.footprint_radius + DEFAULT_MARGIN_M - ctrl.map.grid.inflation  # 0.0985 m
+    from dataclasses import replace
+
+    from sanav_mj.eval.episode import sensed_narrow_width
+
+    # at margin 0.05 m: 0.330 + 0.05 - (0.2305 + 0.05) = 0.0985 m lost, strips of up to 4 cells narrow
+    m05 = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_margin=0.05))
+    ctrl = lidar_controller(sc, m05)
+    lost = sc.robot.footprint_radius + DEFAULT_MARGIN_M - ctrl.map.grid.inflation
     assert 0.0975 < lost < 0.1
     assert ctrl.config.narrow_width == pytest.approx(0.25, abs=1e-15) == ctrl.body.narrow_width
+    # the default's margin gives the width of its own lost inflation
+    ctrl = lidar_controller(sc, DISCS)
+    lost = sc.robot.footprint_radius + DEFAULT_MARGIN_M - ctrl.map.grid.inflation
+    assert ctrl.config.narrow_width == sensed_narrow_width(lost, 0.05) == ctrl.body.narrow_width
     assert lidar_controller(sc).config.narrow_width == 0.0
 
 
