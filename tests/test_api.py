@@ -154,13 +154,13 @@ def test_lidar_run_document_is_the_cli_json(tmp_path):
 def test_lidar_run_with_the_discs_footprint():
     """``sensing="lidar"`` with a discs-mode ControllerSpec: the sensed map is inflated by the
     disc cover's radius + footprint_margin and the document names the footprint settings (one
-    grid: refine 1); known-map-only discs settings are refused."""
+    grid: refine 1, no grown chains); known-map-only discs settings are refused."""
     from dataclasses import replace
 
     from sanav_mj.control.config import MPCConfig
     from sanav_mj.control.spec import ControllerSpec
 
-    spec = ControllerSpec("sa-mpc", replace(MPCConfig(), footprint="discs"))
+    spec = ControllerSpec("sa-mpc", replace(MPCConfig(), footprint="discs", footprint_margin=0.05))
     res = sanav_mj.run_scenario("single_rect", controller=spec, seed=1, sensing="lidar")
     doc = res.to_dict()
     assert doc["success"] and doc["collisions"] == 0 and doc["sensing"] == "lidar"
@@ -168,8 +168,8 @@ def test_lidar_run_with_the_discs_footprint():
                                 "grow_m": 0.0}
     fp = sanav_mj.footprint.robot_footprint(res.prepared.scenario.model)
     assert res.sensed.map.grid.inflation == fp.discs(3)[1] + 0.05
-    with pytest.raises(ValueError, match="footprint_grow"):
-        sanav_mj.run_scenario("single_rect", controller=replace(spec, sa_mpc=replace(spec.sa_mpc, footprint_grow=1.0)),
+    with pytest.raises(ValueError, match="footprint_route"):
+        sanav_mj.run_scenario("single_rect", controller=replace(spec, sa_mpc=replace(spec.sa_mpc, footprint_route="pose")),
                               sensing="lidar")
 
 
