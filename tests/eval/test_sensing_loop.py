@@ -324,3 +324,44 @@ def test_background_replans_use_only_observed_free_space():
     assert out.document["success"] and out.document["collisions"] == 0
     assert any(r.deferred for r in ctrl.records)
     assert len(checked) > 50 and len(relaxed) < len(checked) // 10
+
+
+def test_replan_keeps_all_predicted_positions_braking_ones_when_blocked_none_when_slow():
+    # at steps in motion, the kept rectangles are those of kept_prefix on all predicted
+    # positions for an extend / route replan, on the braking prefix for a blocked one, and
+    # nothing below SensingConfig.keep_min_speed
+    from sanav_mj.control.replan import braking_prefix, kept_prefix
+
+    sc = load_scenario("single_rect")
+    holder, seen = [], []
+
+    def on_step(step, trace):
+        ctrl = holder[0]
+        speed = max(0.0, float(trace.velocity[step][0]))
+        if ctrl.mpc is None or ctrl._mpc_fresh or ctrl._predicted is None or speed < 0.5:
+            return
+        g = ctrl.map.grid
+        pose = ctrl.estimate.copy()
+        pts = np.vstack([pose[None, :2], ctrl._predicted[1:, :2]])
+        full = kept_prefix(ctrl._corridor_rects, pts, g.blocked, g.origin, g.resolution)
+        brake = kept_prefix(ctrl._corridor_rects, braking_prefix(pts, speed, ctrl.robot.a_max), g.blocked,
+                            g.origin, g.resolution)
+        assert np.array_equal(ctrl._plan_inputs(pose, speed, "extend")[-1], full)
+        assert np.array_equal(ctrl._plan_inputs(pose, speed, "route")[-1], full)
+        assert np.array_equal(ctrl._plan_inputs(pose, speed, "blocked")[-1], brake)
+        assert ctrl._plan_inputs(pose, ctrl.config.keep_min_speed * 0.99, "extend")[-1] is None
+        seen.append((len(full), len(brake)))
+
+    ctrl = lidar_controller(sc)
+    holder.append(ctrl)
+    run_scenario(sc, seed=0, sensing="lidar", controller_obj=ctrl, on_step=on_step, time_limit_s=6.0)
+    assert len(seen) > 10
+    assert any(b < f for f, b in seen)  # the braking prefix keeps fewer rectangles somewhere
+    assert all(b >= 1 for f, b in seen)
+
+
+def test_keep_min_speed_is_checked():
+    with pytest.raises(ValueError, match="keep_min_speed"):
+        SensingConfig(keep_min_speed=-0.1)
+    with pytest.raises(ValueError, match="keep_min_speed"):
+        SensingConfig(keep_min_speed=float("nan"))
