@@ -16,13 +16,6 @@ per-step time goes"). Here the replan keeps them:
    first position the last one misses and of the one before it, so they overlap), and the
    prefix ends at the first position no safe sub-rectangle can hold. Consecutive kept rectangles must overlap
    or share a boundary segment (as corridor areas do).
-   Which predicted positions are kept (``SensingConfig.keep_rects``): all of them at an
-   ``extend`` or ``route`` replan; at a ``blocked`` replan (a scan has just made a corridor
-   rectangle unsafe) only those up to the robot's stopping distance (:func:`braking_prefix`),
-   so the new corridor is not held to the old direction beyond what braking needs; nothing
-   below ``SensingConfig.keep_min_speed`` (the shifted plan of a robot that slow barely moves,
-   and keeping its rectangles only held it where the old plan had stalled). Measured on the
-   BARN-like worlds (docs/sensing.md, "Keeping the rectangles in use").
 2. :func:`prefixed_areas`: the current safe areas with the kept rectangles placed first
    (so the planner, which starts in the lowest-numbered area holding the start, starts in
    them), linked as a chain, the last one linked to every current area it overlaps; the
@@ -41,7 +34,7 @@ import numpy as np
 from sanav_mj.mapping.grow import FreeCells, grow_rect
 from sanav_mj.mapping.safe_areas import SafeAreas
 
-__all__ = ["braking_prefix", "kept_prefix", "prefixed_areas", "rect_cells", "rects_safe"]
+__all__ = ["kept_prefix", "prefixed_areas", "rect_cells", "rects_safe"]
 
 _TOL = 1e-9
 
@@ -121,31 +114,6 @@ def _cover(blocked: np.ndarray, box: np.ndarray, pts: np.ndarray, origin: np.nda
         out.append(g)
         prev = cell
     return out, True
-
-
-def braking_prefix(predicted: np.ndarray, speed: float, a_max: float) -> np.ndarray:
-    """The leading predicted positions the robot needs to brake inside (what a ``blocked``
-    replan keeps, docs/sensing.md "Keeping the rectangles in use").
-
-    Args:
-        predicted: (P, 2) [m] predicted positions, the robot's position first.
-        speed: [m/s] the robot's forward speed (its magnitude is used).
-        a_max: [m/s^2] > 0, the braking deceleration.
-
-    Returns:
-        (Q, 2) [m] the first Q >= 1 positions (Q = 0 only when P = 0): every position whose arc
-        length along the polyline is at most the stopping distance ``speed**2 / (2 a_max)``,
-        and the first one beyond it (so the kept chain reaches past the point of rest).
-    """
-    pts = np.asarray(predicted, dtype=float).reshape(-1, 2)
-    if a_max <= 0 or not np.isfinite(a_max):
-        raise ValueError(f"braking_prefix: expected a_max > 0 [m/s^2], got {a_max!r}")
-    if len(pts) == 0:
-        return pts
-    d = speed * speed / (2.0 * a_max)
-    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
-    n = int(np.searchsorted(arc, d, side="right")) + 1
-    return pts[:max(n, 1)]
 
 
 def kept_prefix(corridor_rects: np.ndarray, predicted: np.ndarray, blocked: np.ndarray, origin,

@@ -65,7 +65,7 @@ import numpy as np
 from sanav_mj.control.base import Command, Observation
 from sanav_mj.control.config import MPCConfig
 from sanav_mj.control.localisation import ScanLocaliser
-from sanav_mj.control.replan import braking_prefix, kept_prefix, prefixed_areas
+from sanav_mj.control.replan import kept_prefix, prefixed_areas
 from sanav_mj.control.sa_mpc import SAMPC
 from sanav_mj.control.sensed_footprint import SensedFootprint, StraightBrakeSAMPC
 from sanav_mj.footprint import Footprint
@@ -169,12 +169,6 @@ class SensingConfig:
             map, a partly unsafe one cut to a safe part holding them;
             :mod:`sanav_mj.control.replan`), so the corridor starts with the boxes the
             shifted plan lies in; False: the corridor is planned on the current areas alone.
-            At a ``blocked`` replan only the positions up to the stopping distance are kept
-            (:func:`~sanav_mj.control.replan.braking_prefix`).
-        keep_min_speed: [m/s] >= 0, with ``keep_rects``: a replan at a measured forward speed
-            below this keeps nothing (0.15 by default; 0: keep at any speed). Both rules were
-            chosen on the BARN-like worlds, where keeping all predicted positions lost 7
-            worlds (docs/sensing.md, "Keeping the rectangles in use").
         route_polyline: the route to the goal (on the route areas, only checked against the
             map and used to place the local goal, never followed) is the planner's portal
             waypoint polyline sampled every ``PlannerConfig.spacing``
@@ -209,7 +203,6 @@ class SensingConfig:
     refresh: bool = False
     straight_brake: bool = False
     keep_rects: bool = True
-    keep_min_speed: float = 0.15
     route_polyline: bool = False
 
     def __post_init__(self) -> None:
@@ -251,10 +244,6 @@ class SensingConfig:
             raise ValueError(f"SensingConfig.route_polyline: expected True or False, got {self.route_polyline!r}")
         if not isinstance(self.keep_rects, bool):
             raise ValueError(f"SensingConfig.keep_rects: expected True or False, got {self.keep_rects!r}")
-        if not (isinstance(self.keep_min_speed, (int, float)) and not isinstance(self.keep_min_speed, bool)
-                and math.isfinite(self.keep_min_speed) and self.keep_min_speed >= 0):
-            raise ValueError(f"SensingConfig.keep_min_speed: expected a finite number >= 0 [m/s], "
-                             f"got {self.keep_min_speed!r}")
         if not isinstance(self.background_replan, bool):
             raise ValueError(f"SensingConfig.background_replan: expected True or False, got {self.background_replan!r}")
 
@@ -648,12 +637,9 @@ class SensingSAMPC:
         """Everything :meth:`_compute` reads that the control thread changes later (the map
         itself is read only before the next scan is integrated)."""
         kept = None
-        if self.config.keep_rects and self.mpc is not None and not self._mpc_fresh and self._predicted is not None \
-                and speed >= self.config.keep_min_speed:
+        if self.config.keep_rects and self.mpc is not None and not self._mpc_fresh and self._predicted is not None:
             g = self.map.grid
             pts = np.vstack([pose[None, :2], self._predicted[1:, :2]])
-            if reason == "blocked":
-                pts = braking_prefix(pts, speed, self.robot.a_max)
             kept = kept_prefix(self._corridor_rects, pts, g.blocked, g.origin, g.resolution)
         return (pose.copy(), speed, reason, self._areas, self._boxes, self._have_route, self.mpc is not None, kept)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sanav_mj.control.replan import braking_prefix, kept_prefix, prefixed_areas, rect_cells, rects_safe
+from sanav_mj.control.replan import kept_prefix, prefixed_areas, rect_cells, rects_safe
 from sanav_mj.control.stages import CorridorChain, assign_stages, stage_boxes
 from sanav_mj.mapping.sensed_map import SensedMap
 from sanav_mj.planning import PlannerConfig, plan
@@ -206,18 +206,3 @@ def test_random_maps_every_kept_rectangle_is_safe_and_a_chain(seed):
         for a, b in zip(kept[:-1], kept[1:]):
             w = np.minimum(a[2:], b[2:]) - np.maximum(a[:2], b[:2])
             assert (w >= -1e-9).all() and w.max() > 1e-9
-
-
-def test_braking_prefix_keeps_the_positions_up_to_the_stopping_distance_and_one_beyond():
-    pts = np.column_stack([0.25 * np.arange(10), np.zeros(10)])  # arc lengths 0, 0.25, ... (exact)
-    # 1 m/s, 1 m/s^2: stopping distance 0.5 m -> arcs 0, 0.25, 0.5 and the next one
-    assert np.array_equal(braking_prefix(pts, 1.0, 1.0), pts[:4])
-    # 2 m/s, 1 m/s^2: 2 m -> arcs up to 2.0 (9 positions) and the 10th
-    assert np.array_equal(braking_prefix(pts, 2.0, 1.0), pts)
-    assert np.array_equal(braking_prefix(pts, 0.0, 1.0), pts[:2])  # at rest: the robot and the next
-    # the arc length follows the polyline, not the straight distance from the robot
-    zig = np.array([[0.0, 0.0], [0.3, 0.4], [0.0, 0.8], [0.3, 1.2], [0.0, 1.6]])  # 0.5 m segments
-    assert len(braking_prefix(zig, 1.0, 1.0)) == 3
-    assert braking_prefix(np.zeros((0, 2)), 1.0, 1.0).shape == (0, 2)
-    with pytest.raises(ValueError, match="a_max"):
-        braking_prefix(pts, 1.0, 0.0)
