@@ -31,16 +31,19 @@ def _cells_of(box: np.ndarray, origin: np.ndarray, h: float, shape: tuple[int, i
     return slice(i0, i1), slice(j0, j1)
 
 
-def _checked_run(scenario, seed: int = 0, yaw=None, background: bool = False):
+def _checked_run(scenario, seed: int = 0, yaw=None, background: bool = False, keep_rects: bool = False):
     """Run with a per-step check of the rectangles the MPC used; returns (outcome, ctrl, checked
     steps, steps whose boxes were widened towards a robot position outside its box);
-    ``background``: with ``SensingConfig.background_replan``."""
+    ``background``: with ``SensingConfig.background_replan``; ``keep_rects``: with
+    ``SensingConfig.keep_rects`` (off by default)."""
     from dataclasses import replace
 
     sc = load_scenario(scenario) if isinstance(scenario, (str, Path)) else scenario
     ctrl = lidar_controller(sc)
     if background:
         ctrl.config = replace(ctrl.config, background_replan=True)
+    if keep_rects:
+        ctrl.config = replace(ctrl.config, keep_rects=True)
     truth = prepare(sc).grid  # the known-map grid, same inflation and cells
     checked, relaxed = [], []
 
@@ -324,3 +327,12 @@ def test_background_replans_use_only_observed_free_space():
     assert out.document["success"] and out.document["collisions"] == 0
     assert any(r.deferred for r in ctrl.records)
     assert len(checked) > 50 and len(relaxed) < len(checked) // 10
+
+
+def test_kept_rectangles_use_only_observed_free_space():
+    # SensingConfig.keep_rects (opt-in): the kept rectangles of the corridor being followed and
+    # the stage boxes made from them are checked against the map of every step that uses them
+    out, ctrl, checked, relaxed = _checked_run("u_shape", seed=0, keep_rects=True)
+    assert ctrl.config.keep_rects and not lidar_controller(load_scenario("u_shape")).config.keep_rects
+    assert out.document["success"] and out.document["collisions"] == 0
+    assert len(checked) > 50 and len(relaxed) <= 0.15 * len(checked)
