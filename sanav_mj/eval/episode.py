@@ -507,17 +507,29 @@ def _chain(first, second):
 
 
 def lidar_spec(cspec: ControllerSpec) -> ControllerSpec:
-    """``cspec`` as a lidar run uses it: in ``"discs"`` mode with ``footprint_refine`` 1 and
-    ``footprint_grow`` 0 (the sensed map is one grid of the run's resolution: the known map's
-    local refinement and the growth of the chain's boxes to maximal free rectangles of a
-    fixed grid are not applied to it, so the run document says refine 1 and grow 0);
-    ``cspec`` itself otherwise."""
+    """``cspec`` as a lidar run uses it: in ``"discs"`` mode with ``footprint_refine`` 1,
+    ``footprint_grow`` 0 and the prediction monitor's box tightening off; ``cspec`` itself
+    otherwise.
+
+    The sensed map is one grid of the run's resolution: the known map's local refinement and
+    the growth of the chain's boxes to maximal free rectangles of a fixed grid are not
+    applied to it (the run document says refine 1 and grow 0). The tightening shrinks the
+    stage boxes by the measured one-step prediction error, whose bound assumes the measured
+    state is the true one; with the lidar the measured state is the localiser's, and its
+    scan-match corrections enter that error: with it on, 2 of the 25 paper-scenario runs
+    ended ``solver_failure`` / ``stuck`` in the gaps (complex seeds 2 and 4, double_rect
+    seeds 3 and 4 at another code state), all four reach the goal with it off (2026-11-24,
+    docs/results.md). The speed derating stays on; the lidar mode's own-position safety is
+    the body clearing with its pose bound (docs/sensing.md)."""
     from dataclasses import replace
 
     mpc = cspec.sa_mpc
-    if mpc.footprint != "discs" or (mpc.footprint_refine == 1 and mpc.footprint_grow == 0):
+    pred = mpc.footprint_prediction
+    tight = pred is not None and pred.tighten
+    if mpc.footprint != "discs" or (mpc.footprint_refine == 1 and mpc.footprint_grow == 0 and not tight):
         return cspec
-    return replace(cspec, sa_mpc=replace(mpc, footprint_refine=1, footprint_grow=0.0))
+    return replace(cspec, sa_mpc=replace(mpc, footprint_refine=1, footprint_grow=0.0,
+                                         footprint_prediction=replace(pred, tighten=False) if tight else pred))
 
 
 def sensed_narrow_width(lost: float, resolution: float) -> float:
@@ -549,9 +561,11 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
     ``footprint_refine``, is not applied to the sensed map) and, in ``"discs"`` mode, the
     known map's narrow-passage penalty of the corridor search (:func:`planning_areas`).
 
+    ``cspec`` is first taken as :func:`lidar_spec` gives it (no refinement, no grown chains,
+    no box tightening in ``"discs"`` mode).
+
     Raises:
-        ValueError: ``"discs"`` with ``footprint_grow > 0`` or ``footprint_route="pose"``
-            (known-map settings: the grown boxes need the whole grid's free cells, the pose
+        ValueError: ``"discs"`` with ``footprint_route="pose"`` (a known-map setting: the pose
             search takes about a second per plan).
     """
     from sanav_mj.control.sensing import SensingConfig, SensingSAMPC

@@ -144,7 +144,10 @@ def test_discs_lidar_refuses_or_drops_known_map_only_settings():
     grown = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_grow=1.0, footprint_refine=2))
     used = lidar_spec(grown).sa_mpc
     assert (used.footprint_grow, used.footprint_refine) == (0.0, 1)
-    assert used == replace(grown.sa_mpc, footprint_grow=0.0, footprint_refine=1)
+    # the tightening's bound assumes the measured state is the true one: off with the localiser
+    assert grown.sa_mpc.footprint_prediction.tighten and not used.footprint_prediction.tighten
+    assert used == replace(grown.sa_mpc, footprint_grow=0.0, footprint_refine=1,
+                           footprint_prediction=replace(grown.sa_mpc.footprint_prediction, tighten=False))
     assert lidar_spec(footprint_spec()) == footprint_spec()
 
 
