@@ -15,6 +15,7 @@ half-written file: the last rename wins and every process loads a complete libra
 from __future__ import annotations
 
 import ctypes
+import functools
 import hashlib
 import logging
 import os
@@ -175,3 +176,33 @@ def load_c_kernel(prefix: str, source: str, what: str, disable_env: str) -> ctyp
         return ctypes.CDLL(str(target))
     except (NoCompilerError, CompileError, OSError):
         return None
+
+
+#: Environment variable: set to ``1`` to run the NumPy paths of the compiled kernels
+#: (beams, safe areas, scan match, corridor assignment) even where C compiles.
+NO_KERNEL_ENV = "SANAV_MJ_NO_CKERNEL"
+
+#: a compiled function's ctypes signature: (restype, argtypes)
+Signature = tuple[object, Sequence[object]]
+
+
+def kernel_loader(prefix: str, source: str, what: str, disable_env: str,
+                  signatures: dict[str, Signature]) -> Callable[[], ctypes.CDLL | None]:
+    """A loader of a C kernel that compiles and loads it on its first call only
+    (:func:`load_c_kernel`) and sets the ``restype`` / ``argtypes`` of each function named in
+    ``signatures``; every later call returns the same library, or None when the first found
+    no compiler, a failed compile, an unwritable cache or the kernel switched off by
+    ``disable_env`` (the caller then uses its NumPy path)."""
+
+    @functools.cache
+    def load() -> ctypes.CDLL | None:
+        lib = load_c_kernel(prefix, source, what, disable_env)
+        if lib is None:
+            return None
+        for name, (restype, argtypes) in signatures.items():
+            f = getattr(lib, name)
+            f.restype = restype
+            f.argtypes = list(argtypes)
+        return lib
+
+    return load

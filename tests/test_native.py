@@ -17,6 +17,7 @@ from sanav_mj.native import (
     NoCompilerError,
     compile_cached,
     find_compiler,
+    kernel_loader,
     library_path,
 )
 
@@ -40,6 +41,27 @@ def _call(path: Path) -> int:
     f = ctypes.CDLL(str(path)).sanav_test_mul
     f.restype, f.argtypes = ctypes.c_longlong, [ctypes.c_longlong, ctypes.c_longlong]
     return f(6, 7)
+
+
+def test_a_kernel_loader_compiles_on_its_first_call_only_and_sets_the_signatures(tmp_path, monkeypatch):
+    try:
+        find_compiler()
+    except NoCompilerError:
+        pytest.skip("no C compiler on this machine")
+    monkeypatch.setenv("SANAV_MJ_CACHE", str(tmp_path))
+    monkeypatch.delenv("SANAV_TEST_NO_KERNEL", raising=False)
+    load = kernel_loader("ktest", SOURCE, "the test kernel", "SANAV_TEST_NO_KERNEL",
+                         {"sanav_test_mul": (ctypes.c_longlong, [ctypes.c_longlong, ctypes.c_longlong])})
+    lib = load()
+    assert lib is not None and load() is lib  # loaded once
+    # the signature is set: 64-bit operands and result (without it ctypes would pass and return C ints)
+    assert lib.sanav_test_mul.restype is ctypes.c_longlong
+    assert lib.sanav_test_mul(3 << 32, 2) == (6 << 32) + 1
+    assert len(list(tmp_path.glob("ktest_*"))) == 1
+    # switched off: None, and nothing compiled
+    monkeypatch.setenv("SANAV_TEST_NO_KERNEL", "1")
+    off = kernel_loader("koff", SOURCE, "the test kernel", "SANAV_TEST_NO_KERNEL", {})
+    assert off() is None and off() is None and not list(tmp_path.glob("koff_*"))
 
 
 def test_compiles_once_then_returns_the_cached_library(tmp_path):

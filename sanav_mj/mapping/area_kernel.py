@@ -30,7 +30,7 @@ import ctypes
 import numpy as np
 
 from sanav_mj.mapping.beam_kernel import NO_KERNEL_ENV, address, buffer_address
-from sanav_mj.native import load_c_kernel
+from sanav_mj.native import kernel_loader
 
 _SOURCE = r"""
 #include <math.h>
@@ -326,41 +326,20 @@ int64_t sanav_snapshot(int64_t cap, const uint8_t *alive, const int64_t *boxes, 
 }
 """
 
-_lib: ctypes.CDLL | None = None
-_tried = False
-
-
-def _load() -> ctypes.CDLL | None:
-    """The compiled functions, or None (no compiler, failed compile, ``SANAV_MJ_NO_CKERNEL=1``)."""
-    global _lib, _tried
-    if _tried:
-        return _lib
-    _tried = True
-    lib = load_c_kernel("areas", _SOURCE, "the safe-area kernel", NO_KERNEL_ENV)
-    if lib is None:
-        return None
-    i64, ptr = ctypes.c_int64, ctypes.c_void_p
-    lib.sanav_pyramid_add.restype = None
-    lib.sanav_pyramid_add.argtypes = [i64, ptr, ptr, i64, i64, ptr, i64]
-    lib.sanav_tile_leaves.restype = i64
-    lib.sanav_tile_leaves.argtypes = [i64, ptr, i64, i64, i64, i64, i64, ptr, i64, ptr]
-    lib.sanav_meeting.restype = i64
-    lib.sanav_meeting.argtypes = [i64, ptr, ptr, i64, ptr, i64, ptr]
-    lib.sanav_pieces.restype = i64
-    lib.sanav_pieces.argtypes = [i64, ptr, i64, ptr, i64, ptr]
-    lib.sanav_link.restype = i64
-    lib.sanav_link.argtypes = [i64, ptr, i64, ptr, ptr, ptr, ptr, ptr]
-    lib.sanav_apply_cells.restype = i64
-    lib.sanav_apply_cells.argtypes = [i64, ptr, ptr, ptr, i64, i64, ptr, i64, i64, ptr, ptr]
-    lib.sanav_drop_edges.restype = i64
-    lib.sanav_drop_edges.argtypes = [i64, ptr, ptr]
-    lib.sanav_merge.restype = i64
-    lib.sanav_merge.argtypes = [i64, ptr]
-    lib.sanav_snapshot.restype = i64
-    lib.sanav_snapshot.argtypes = [i64, ptr, ptr, i64, ptr, i64, ctypes.c_double, ctypes.c_double, ctypes.c_double,
-                                   ptr, ptr, ptr, ptr, ptr, ptr, ptr]
-    _lib = lib
-    return _lib
+_i64, _ptr = ctypes.c_int64, ctypes.c_void_p
+#: the compiled functions, or None (no compiler, failed compile, ``SANAV_MJ_NO_CKERNEL=1``)
+_load = kernel_loader("areas", _SOURCE, "the safe-area kernel", NO_KERNEL_ENV, {
+    "sanav_pyramid_add": (None, [_i64, _ptr, _ptr, _i64, _i64, _ptr, _i64]),
+    "sanav_tile_leaves": (_i64, [_i64, _ptr, _i64, _i64, _i64, _i64, _i64, _ptr, _i64, _ptr]),
+    "sanav_meeting": (_i64, [_i64, _ptr, _ptr, _i64, _ptr, _i64, _ptr]),
+    "sanav_pieces": (_i64, [_i64, _ptr, _i64, _ptr, _i64, _ptr]),
+    "sanav_link": (_i64, [_i64, _ptr, _i64, _ptr, _ptr, _ptr, _ptr, _ptr]),
+    "sanav_apply_cells": (_i64, [_i64, _ptr, _ptr, _ptr, _i64, _i64, _ptr, _i64, _i64, _ptr, _ptr]),
+    "sanav_drop_edges": (_i64, [_i64, _ptr, _ptr]),
+    "sanav_merge": (_i64, [_i64, _ptr]),
+    "sanav_snapshot": (_i64, [_i64, _ptr, _ptr, _i64, _ptr, _i64, ctypes.c_double, ctypes.c_double, ctypes.c_double,
+                              _ptr, _ptr, _ptr, _ptr, _ptr, _ptr, _ptr]),
+})
 
 
 def kernel_available() -> bool:

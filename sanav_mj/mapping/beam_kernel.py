@@ -24,10 +24,8 @@ import ctypes
 
 import numpy as np
 
-from sanav_mj.native import load_c_kernel
+from sanav_mj.native import NO_KERNEL_ENV, kernel_loader
 
-#: Environment variable: set to ``1`` to use the NumPy traversal even where C compiles.
-NO_KERNEL_ENV = "SANAV_MJ_NO_CKERNEL"
 
 _SOURCE = r"""
 #include <math.h>
@@ -326,35 +324,17 @@ void sanav_commit(int64_t T, const int64_t *touched, int8_t *mark, float *lo, fl
 }
 """
 
-_lib: ctypes.CDLL | None = None
-_tried = False
-
-
-def _load() -> ctypes.CDLL | None:
-    """The compiled kernel (compiled on first use into the shared cache, see
-    :func:`sanav_mj.native.compile_cached`), or None: no compiler, a failed compile, an
-    unwritable cache or ``SANAV_MJ_NO_CKERNEL=1``."""
-    global _lib, _tried
-    if _tried:
-        return _lib
-    _tried = True
-    lib = load_c_kernel("beams", _SOURCE, "the beam traversal kernel", NO_KERNEL_ENV)
-    if lib is None:
-        return None
-    f = lib.sanav_free_cells
-    f.restype = ctypes.c_int64
-    f.argtypes = ([ctypes.c_int64] + [ctypes.c_void_p] * 10 + [ctypes.c_int64] + [ctypes.c_void_p] * 3
-                  + [ctypes.c_float])
-    h = lib.sanav_scan_cells
-    h.restype = ctypes.c_int64
-    h.argtypes = ([ctypes.c_int64, ctypes.c_double, ctypes.c_double] + [ctypes.c_void_p] * 2 + [ctypes.c_int64] * 2
-                  + [ctypes.c_void_p] * 3 + [ctypes.c_float, ctypes.c_void_p])
-    g = lib.sanav_commit
-    g.restype = None
-    g.argtypes = ([ctypes.c_int64] + [ctypes.c_void_p] * 5 + [ctypes.c_int64] * 6 + [ctypes.c_void_p] * 11
-                  + [ctypes.c_int64, ctypes.c_void_p])
-    _lib = lib
-    return _lib
+#: the compiled kernel (compiled on first use into the shared cache, see
+#: :func:`sanav_mj.native.compile_cached`), or None: no compiler, a failed compile, an
+#: unwritable cache or ``SANAV_MJ_NO_CKERNEL=1``
+_load = kernel_loader("beams", _SOURCE, "the beam traversal kernel", NO_KERNEL_ENV, {
+    "sanav_free_cells": (ctypes.c_int64, [ctypes.c_int64] + [ctypes.c_void_p] * 10 + [ctypes.c_int64]
+                         + [ctypes.c_void_p] * 3 + [ctypes.c_float]),
+    "sanav_scan_cells": (ctypes.c_int64, [ctypes.c_int64, ctypes.c_double, ctypes.c_double] + [ctypes.c_void_p] * 2
+                         + [ctypes.c_int64] * 2 + [ctypes.c_void_p] * 3 + [ctypes.c_float, ctypes.c_void_p]),
+    "sanav_commit": (None, [ctypes.c_int64] + [ctypes.c_void_p] * 5 + [ctypes.c_int64] * 6 + [ctypes.c_void_p] * 11
+                     + [ctypes.c_int64, ctypes.c_void_p]),
+})
 
 
 _addresses: dict[int, tuple[np.ndarray, int]] = {}

@@ -21,7 +21,7 @@ import ctypes
 import numpy as np
 
 from sanav_mj.mapping.beam_kernel import NO_KERNEL_ENV, address, buffer_address
-from sanav_mj.native import load_c_kernel
+from sanav_mj.native import kernel_loader
 
 __all__ = ["correspond", "kernel_available", "pair_rows"]
 
@@ -109,29 +109,14 @@ int64_t sanav_pair_rows(int64_t P, const double *s, const double *nrm, double x0
 }
 """
 
-_lib: ctypes.CDLL | None = None
-_tried = False
-
-
-def _load() -> ctypes.CDLL | None:
-    """The compiled kernel, or None (no compiler, a failed compile, an unwritable cache or
-    ``SANAV_MJ_NO_CKERNEL=1``)."""
-    global _lib, _tried
-    if _tried:
-        return _lib
-    _tried = True
-    lib = load_c_kernel("match", _SOURCE, "the scan-match kernel", NO_KERNEL_ENV)
-    if lib is None:
-        return None
-    i64, dbl, ptr = ctypes.c_int64, ctypes.c_double, ctypes.c_void_p
-    f = lib.sanav_correspond
-    f.restype = None
-    f.argtypes = [i64] + [ptr] * 4 + [i64, dbl, dbl, dbl, i64, i64, i64, ptr, ptr]
-    g = lib.sanav_pair_rows
-    g.restype = i64
-    g.argtypes = [i64, ptr, ptr] + [dbl] * 5 + [ptr] * 3 + [i64, dbl, dbl, dbl, i64, i64, i64, ptr, ptr, ptr]
-    _lib = lib
-    return _lib
+_i64, _dbl, _ptr = ctypes.c_int64, ctypes.c_double, ctypes.c_void_p
+#: the compiled kernel (on first use, into the shared cache), or None: no compiler, a failed
+#: compile, an unwritable cache or ``SANAV_MJ_NO_CKERNEL=1``
+_load = kernel_loader("match", _SOURCE, "the scan-match kernel", NO_KERNEL_ENV, {
+    "sanav_correspond": (None, [_i64] + [_ptr] * 4 + [_i64, _dbl, _dbl, _dbl, _i64, _i64, _i64, _ptr, _ptr]),
+    "sanav_pair_rows": (_i64, [_i64, _ptr, _ptr] + [_dbl] * 5 + [_ptr] * 3
+                        + [_i64, _dbl, _dbl, _dbl, _i64, _i64, _i64, _ptr, _ptr, _ptr]),
+})
 
 
 def kernel_available() -> bool:

@@ -16,11 +16,9 @@ import ctypes
 
 import numpy as np
 
-from sanav_mj.native import load_c_kernel
+from sanav_mj.native import NO_KERNEL_ENV, kernel_loader
 
 __all__ = ["assign", "kernel_available"]
-
-NO_KERNEL_ENV = "SANAV_MJ_NO_CKERNEL"
 
 _SOURCE = r"""
 #include <stdint.h>
@@ -63,24 +61,12 @@ int64_t sanav_assign(int64_t K, const double *pts, const int64_t *hint, const do
 }
 """
 
-_lib: ctypes.CDLL | None = None
-_tried = False
-
-
-def _load() -> ctypes.CDLL | None:
-    global _lib, _tried
-    if _tried:
-        return _lib
-    _tried = True
-    lib = load_c_kernel("assign", _SOURCE, "the corridor assignment kernel", NO_KERNEL_ENV)
-    if lib is None:
-        return None
-    f = lib.sanav_assign
-    f.restype = ctypes.c_int64
-    f.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 3 + [ctypes.c_int64, ctypes.c_int64, ctypes.c_double] \
-        + [ctypes.c_void_p] * 2
-    _lib = lib
-    return _lib
+#: the compiled kernel (on first use, into the shared cache), or None: no compiler, a failed
+#: compile, an unwritable cache or ``SANAV_MJ_NO_CKERNEL=1``
+_load = kernel_loader("assign", _SOURCE, "the corridor assignment kernel", NO_KERNEL_ENV, {
+    "sanav_assign": (ctypes.c_int64, [ctypes.c_int64] + [ctypes.c_void_p] * 3
+                     + [ctypes.c_int64, ctypes.c_int64, ctypes.c_double] + [ctypes.c_void_p] * 2),
+})
 
 
 def kernel_available() -> bool:

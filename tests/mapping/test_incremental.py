@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 from _mapping_reference import room_scan
@@ -168,8 +170,8 @@ def test_the_areas_fall_back_to_numpy_without_the_kernel(monkeypatch):
     area_kernel function says so and the incremental areas still match a rebuild."""
     from sanav_mj.mapping import area_kernel
 
-    monkeypatch.setattr(area_kernel, "_lib", None)
-    monkeypatch.setattr(area_kernel, "_tried", False)
+    # a fresh load-once loader (restored after the test): the next call compiles or fails anew
+    monkeypatch.setattr(area_kernel, "_load", functools.cache(area_kernel._load.__wrapped__))
     monkeypatch.setenv("SANAV_MJ_NO_CKERNEL", "1")
     assert not area_kernel.kernel_available()
     rng = np.random.default_rng(4)

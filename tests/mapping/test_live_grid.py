@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -317,8 +318,8 @@ def test_the_traversal_falls_back_to_numpy_without_a_compiler_or_when_switched_o
     from sanav_mj.mapping import beam_kernel
     from sanav_mj.mapping.live_grid import crossed_cells, segment_columns
 
-    monkeypatch.setattr(beam_kernel, "_lib", None)
-    monkeypatch.setattr(beam_kernel, "_tried", False)
+    # a fresh load-once loader (restored after the test): the next call compiles or fails anew
+    monkeypatch.setattr(beam_kernel, "_load", functools.cache(beam_kernel._load.__wrapped__))
     monkeypatch.setenv("SANAV_MJ_CACHE", str(tmp_path / "cache"))
     if how == "no compiler":
         monkeypatch.setenv("CC", "/nonexistent/cc")
@@ -341,8 +342,8 @@ def test_the_compiled_traversal_lands_in_the_cache_folder(tmp_path, monkeypatch)
         find_compiler()
     except NoCompilerError:
         pytest.skip("no C compiler on this machine")
-    monkeypatch.setattr(beam_kernel, "_lib", None)
-    monkeypatch.setattr(beam_kernel, "_tried", False)
+    # a fresh load-once loader (restored after the test): the next call compiles or fails anew
+    monkeypatch.setattr(beam_kernel, "_load", functools.cache(beam_kernel._load.__wrapped__))
     monkeypatch.delenv(beam_kernel.NO_KERNEL_ENV, raising=False)
     monkeypatch.setenv("SANAV_MJ_CACHE", str(tmp_path / "cache"))
     assert beam_kernel.kernel_available()
@@ -393,8 +394,8 @@ def test_the_grid_update_falls_back_to_numpy_without_a_compiler(tmp_path, monkey
                                                         max_range=4.0)) for k in range(5)]
     fast = LiveGrid((0.0, 0.0, 6.05, 4.0), 0.05, 0.23)
     ups_fast = [fast.integrate(p[:2], p[2], r, h, angles) for p, r, h in scans]
-    monkeypatch.setattr(beam_kernel, "_lib", None)
-    monkeypatch.setattr(beam_kernel, "_tried", False)
+    # a fresh load-once loader (restored after the test): the next call compiles or fails anew
+    monkeypatch.setattr(beam_kernel, "_load", functools.cache(beam_kernel._load.__wrapped__))
     monkeypatch.setenv("SANAV_MJ_CACHE", str(tmp_path / "cache"))
     monkeypatch.setenv("CC", "/nonexistent/cc")
     slow = LiveGrid((0.0, 0.0, 6.05, 4.0), 0.05, 0.23)
