@@ -221,7 +221,7 @@ def footprint_route_plan(plan: Plan, areas: SafeAreas, grid: OccupancyGrid, scen
     offsets, _ = robot_footprint(scenario.model).discs(mpc.footprint_discs)
     sweep = float(np.hypot(*offsets.T).max())
     res = search_poses(areas, grid.origin, grid.occupied.shape, grid.resolution, offsets, sweep,
-                       np.asarray(start, float), plan.goal, PoseSearchConfig(margin=mpc.box_margin))
+                       np.asarray(start, float), plan.goal, PoseSearchConfig(margin=mpc.stage_box_margin))
     if res.route is None:
         return _replace(plan, ok=False, reason="no_path", corridor=np.zeros(0, dtype=np.int64),
                         waypoints=np.zeros((0, 2)), path=np.zeros((0, 2)), smoothed=np.zeros((0, 2)), reference=None,
@@ -232,7 +232,7 @@ def footprint_route_plan(plan: Plan, areas: SafeAreas, grid: OccupancyGrid, scen
                           pc.speed_fraction * abs(lim.v_min), pc.yaw_rate_fraction * scenario.robot.w_max,
                           pc.accel_fraction * scenario.robot.a_max, pc.yaw_rate_fraction * lim.alpha_max,
                           pc.lateral_accel, info={"corridor_plan_ms": plan.info.get("timing_ms", {}).get("total")},
-                          raster=res.raster, margin=mpc.box_margin)
+                          raster=res.raster, margin=mpc.stage_box_margin)
     if new is None:
         return _replace(plan, info=dict(plan.info, pose_route_fallback=why, pose_search_ms=res.time_ms))
     return new
