@@ -298,7 +298,7 @@ class MPCConfig(TrackingConfig):
     footprint_refine_width: float = 0.25
     footprint_grow: float = 1.0
     footprint_grow_tighten: float = 0.0
-    footprint_box_margin: float = 0.02
+    footprint_box_margin: float = 0.0
     footprint_prediction: PredictionDerating | None = PredictionDerating()
 
     def __post_init__(self) -> None:

@@ -107,16 +107,21 @@ class PredictionDerating:
             rasteriser-scale millimetre.
         tighten_max: [m] the tightening never exceeds this (> 0); each box is in any case
             shrunk by at most a quarter of its width (:func:`~sanav_mj.control.stages.shrink_box`).
+        bias_window: steps over which the pose filter's offset from the measured pose is
+            averaged for :attr:`PredictionMonitor.bias` (>= 1).
+        bias_weight: weight (>= 0) of :attr:`PredictionMonitor.bias` in the tightening; 0: off.
     """
 
     free: float = 0.008
-    stop: float = 0.03
+    stop: float = 0.02
     floor: float = 0.25
     yaw_floor: float = 0.3
     window: int = 20
     tighten: bool = True
     tighten_extra: float = 0.002
     tighten_max: float = 0.05
+    bias_window: int = 4
+    bias_weight: float = 1.0
 
     def __post_init__(self) -> None:
         ok = all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
@@ -137,6 +142,11 @@ class PredictionDerating:
             raise ValueError(f"PredictionDerating.tighten_extra must be a finite number >= 0 m, got {te!r}")
         if not (isinstance(tm, (int, float)) and not isinstance(tm, bool) and math.isfinite(tm) and tm > 0):
             raise ValueError(f"PredictionDerating.tighten_max must be a positive finite number of m, got {tm!r}")
+        bw, bg = self.bias_window, self.bias_weight
+        if isinstance(bw, bool) or not (isinstance(bw, int) and bw >= 1):
+            raise ValueError(f"PredictionDerating.bias_window must be an integer >= 1, got {bw!r}")
+        if isinstance(bg, bool) or not (isinstance(bg, (int, float)) and math.isfinite(bg) and bg >= 0):
+            raise ValueError(f"PredictionDerating.bias_weight must be a finite number >= 0, got {bg!r}")
 
 
 class PredictionMonitor:
@@ -156,6 +166,7 @@ class PredictionMonitor:
         """Forget the episode."""
         self._expected: np.ndarray | None = None
         self._errors: deque[float] = deque(maxlen=self.config.window)
+        self._offsets: deque[np.ndarray] = deque(maxlen=self.config.bias_window)
 
     def expect(self, state: np.ndarray | None) -> None:
         """The state (3,) [m, m, rad] the applied plan predicts for the next step's effective
@@ -175,6 +186,29 @@ class PredictionMonitor:
         self._expected = None
         return e
 
+    def observe_estimate(self, measured: np.ndarray, estimate: np.ndarray) -> None:
+        """Fold in this step's measured pose (3,) and the pose filter's estimate (3,) [m, m,
+        rad]: their disc centres' offsets (D, 2) [m] ``measured - estimate`` enter :attr:`bias`."""
+        a = disc_centres(np.asarray(measured, dtype=float).reshape(1, 3), self.offsets)[0]
+        b = disc_centres(np.asarray(estimate, dtype=float).reshape(1, 3), self.offsets)[0]
+        d = a - b
+        if np.all(np.isfinite(d)):
+            self._offsets.append(d)
+
+    @property
+    def bias(self) -> float:
+        """[m] how far the pose filter's estimate sits from the measurement, systematically:
+        the largest over the disc centres of the norm of the mean offset ``measured -
+        estimate`` over the last ``bias_window`` steps (0 before any; exactly 0 while the
+        filter passes the measurement through, e.g. without pose noise). White measurement
+        noise of std ``sigma`` per axis averages to about ``1.25 sigma / sqrt(bias_window)``;
+        an estimate that drifts from the truth (slip the measured body velocity does not
+        show) by ``b`` adds about ``b``."""
+        if not self._offsets:
+            return 0.0
+        m = np.mean(np.asarray(self._offsets), axis=0)
+        return float(np.max(np.hypot(*m.T)))
+
     @property
     def error(self) -> float:
         """[m] the largest error over the window (0 before any)."""
@@ -188,12 +222,14 @@ class PredictionMonitor:
 
     def tightening(self) -> float:
         """[m] how much the disc rows' stage boxes are shrunk this step: ``min(error +
-        tighten_extra, tighten_max)`` (:attr:`error` the largest measured one-step error over
-        the window), 0 when ``tighten`` is off."""
+        tighten_extra + bias_weight bias, tighten_max)`` (:attr:`error` the largest measured
+        one-step error over the window, :attr:`bias` the estimate's offset from the
+        measurement), 0 when ``tighten`` is off."""
         c = self.config
         if not c.tighten:
             return 0.0
-        return min(self.error + c.tighten_extra, c.tighten_max)
+        b = c.bias_weight * self.bias if c.bias_weight > 0 else 0.0
+        return min(self.error + c.tighten_extra + b, c.tighten_max)
 
     def yaw_fraction(self) -> float:
         """Fraction of ``w_max`` the yaw-rate bound keeps: :meth:`fraction`, not below ``yaw_floor``."""

@@ -508,8 +508,10 @@ def _chain(first, second):
 
 def lidar_spec(cspec: ControllerSpec) -> ControllerSpec:
     """``cspec`` as a lidar run uses it: in ``"discs"`` mode with ``footprint_refine`` 1,
-    ``footprint_grow`` 0 and the prediction monitor's box tightening off; ``cspec`` itself
-    otherwise.
+    ``footprint_grow`` 0, the prediction monitor's box tightening off and the stage boxes
+    shrunk by ``box_margin`` (``footprint_box_margin`` is sized from the known map's tracking
+    and estimation error, which the tightening enters; the localiser's error is not
+    measured by it); ``cspec`` itself otherwise.
 
     The sensed map is one grid of the run's resolution: the known map's local refinement and
     the growth of the chain's boxes to maximal free rectangles of a fixed grid are not
@@ -526,9 +528,10 @@ def lidar_spec(cspec: ControllerSpec) -> ControllerSpec:
     mpc = cspec.sa_mpc
     pred = mpc.footprint_prediction
     tight = pred is not None and pred.tighten
-    if mpc.footprint != "discs" or (mpc.footprint_refine == 1 and mpc.footprint_grow == 0 and not tight):
+    if mpc.footprint != "discs" or (mpc.footprint_refine == 1 and mpc.footprint_grow == 0 and not tight
+                                    and mpc.footprint_box_margin == mpc.box_margin):
         return cspec
-    return replace(cspec, sa_mpc=replace(mpc, footprint_refine=1, footprint_grow=0.0,
+    return replace(cspec, sa_mpc=replace(mpc, footprint_refine=1, footprint_grow=0.0, footprint_box_margin=mpc.box_margin,
                                          footprint_prediction=replace(pred, tighten=False) if tight else pred))
 
 

@@ -146,7 +146,9 @@ def test_discs_lidar_refuses_or_drops_known_map_only_settings():
     assert (used.footprint_grow, used.footprint_refine) == (0.0, 1)
     # the tightening's bound assumes the measured state is the true one: off with the localiser
     assert grown.sa_mpc.footprint_prediction.tighten and not used.footprint_prediction.tighten
-    assert used == replace(grown.sa_mpc, footprint_grow=0.0, footprint_refine=1,
+    # the known map's footprint_box_margin (0) is sized from that map's measured error; the lidar run keeps box_margin
+    assert grown.sa_mpc.footprint_box_margin == 0.0 and used.footprint_box_margin == grown.sa_mpc.box_margin == 0.02
+    assert used == replace(grown.sa_mpc, footprint_grow=0.0, footprint_refine=1, footprint_box_margin=0.02,
                            footprint_prediction=replace(grown.sa_mpc.footprint_prediction, tighten=False))
     assert lidar_spec(footprint_spec()) == footprint_spec()
 
