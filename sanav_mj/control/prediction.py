@@ -18,8 +18,8 @@ yaw-rate bounds are lowered by it, like the excursion and residual derating of
 A plant the model does not predict is driven slowly, which shrinks both its stopping
 distance and the error per period (the errors measured scale with the speed).
 
-Measured (100 BARN-like worlds, seed 0, margin 0.02 m, defaults ``free`` 0.008 m, ``stop``
-0.03 m): nominally the error stays below ``free`` and every run is identical to the run
+Measured (100 BARN-like worlds, seed 0, margin 0.02 m, then defaults ``free`` 0.008 m, ``stop``
+0.03 m; ``stop`` is 0.02 m since h14safe0, see "The estimate's offset"): nominally the error stays below ``free`` and every run is identical to the run
 without the derating (79 / 100); at the envelope corner the largest true excursion of a disc
 centre outside every safe area fell from 13.0 to 2.6 cm, the smallest true clearance of the
 footprint rose from 0.1 cm (one collision) to 3.6 cm, 82 / 100 reach the goal (77 before),
@@ -60,17 +60,46 @@ the applied plan's stage 1 puts it.
    after an accepted or shifted plan cannot touch while ``e <= footprint_margin`` (``<=
    footprint_margin + box_margin`` where the box is at least ``4 box_margin`` wide).
 
+**The estimate's offset** (``bias_window``, ``bias_weight``; measured 2026-11-24, branch
+h14safe0). The boxes hold the *estimated* disc centres; the true ones are off by the pose
+filter's error. Under pose noise the filter (:class:`~sanav_mj.control.monitor.PoseFilter`)
+trusts the measured body velocity, and when the plant slips sideways (which that velocity
+does not show) its estimate drifts from the truth: at the envelope's corner on barn_0010 by
+6.7 cm within five periods of a 1.15 m/s turn, while the one-step error the monitor sees
+(estimate against prediction, both in the drifting frame) read 2.7 cm; accepted plans held
+the estimate in its boxes and the true front centre left every safe area by 7.5 cm. The
+measurement itself is unbiased, so :attr:`PredictionMonitor.bias`, the norm of the mean of
+``measured - estimate`` at the disc centres over the last ``bias_window`` steps, shows the
+drift (white noise of std ``sigma`` averages to about ``1.25 sigma / sqrt(bias_window)``, 1.1
+cm at the corner's 1.75 cm), and it is added to ``delta``: the boxes shrink by what the
+estimate may be off. Without pose noise the filter passes the measurement through, the bias
+is exactly 0 and nothing changes. Together with the stronger derating (``stop`` 0.02 m
+instead of 0.03: a mispredicted plant is driven slower, which shortens the braking paths
+below), with the stage boxes unshrunk (``MPCConfig.footprint_box_margin`` 0), measured on the
+100 BARN-like worlds (docs/results.md, "Tight spaces"): nominal unchanged (95 / 100, the
+error stays below ``free``), at the corner the largest true excursion of a disc centre
+outside every safe area fell from 7.5 to 3.9 cm (<= the 0.04 m ``footprint_margin``; 89
+instead of 91 / 100 reach the goal, 0 collisions, smallest true clearance 4.3 instead of 1.1
+cm); on barn_0010 alone 7.5 cm before, 4.8 cm with the stronger derating only, 0 with both.
+What remains at the corner (barn_0071, 3.9 cm on accepted steps) is the estimate's *noise*
+(2 cm there), which the bias does not see, where the boxes are too narrow to shrink by
+the whole ``delta`` (a quarter of the width per side at most).
+
 What this assumes and does not cover, honestly: ``e`` is the true error, while the monitor
 measures the *estimated* state (pose filter, latency compensation with the identified delay)
-against the prediction, so the estimation error enters both ways; the window's maximum
-bounds the next period's error only if the error changes slowly (a turn that starts to slip
+against the prediction, so the estimation error enters both ways (the bias term covers the
+estimate's slow drift, not its noise); the window's maximum bounds the next period's error only if the error changes slowly (a turn that starts to slip
 is seen one period late); between samples a disc centre leaves its chord by < 1 mm
 (``tighten_extra`` covers it). **Braking steps are outside the argument**: the braking
 fallback's path is not held to the boxes; it steers at most at the derated yaw rate and its
 candidates are scored on the identified response
 (:meth:`~sanav_mj.control.adaptation.PlantAdaptation.brake_response`), but a robot braking from speed ``v`` travels about
 ``v^2 / (2 a_max)`` on a model that mispredicts by ``e`` per period; only the derating's
-lower speed limits that. Nor are the steps from rest. The footprint margin is therefore
+lower speed limits that. Nor are the steps from rest: with the boxes unshrunk the largest
+nominal excursion (2.8 cm, barn_0095) builds up in a loop of plans from rest and braking
+steps, where the widening that follows the resting robot lets a plan slide along the
+outside of its stage box (the centre lay 3.3 cm beyond the box but only 1 cm outside the
+union of the safe areas) and the next, moving step finds no plan back in. The footprint margin is therefore
 sized from the error measured under the envelope (docs/results.md, "Tight spaces": the
 largest excursion of every run and where it came from), not guaranteed by this argument.
 """
