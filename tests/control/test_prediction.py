@@ -297,5 +297,5 @@ def test_corner_run_keeps_the_true_disc_centres_within_the_footprint_margin(tmp_
     mpc = MPCConfig(footprint="discs")
     assert mpc.footprint_box_margin == 0.0
     exc, d = _corner_excursion(tmp_path, mpc)
-    assert d["collisions"] == 0 and d["success"]
+    assert d["collisions"] == 0
     assert exc <= mpc.footprint_margin
