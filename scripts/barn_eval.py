@@ -145,7 +145,7 @@ def cmd_closed_loop(args) -> int:
                                    ("footprint_narrow_penalty", args.narrow_penalty),
                                    ("footprint_refine", args.refine), ("footprint_refine_width", args.refine_width),
                                    ("footprint_grow", args.grow), ("footprint_grow_tighten", args.grow_tighten),
-                                   ("footprint_route", args.route), ("box_margin", args.box_margin))
+                                   ("footprint_route", args.route), ("footprint_box_margin", args.box_margin))
                  if v is not None}
         if args.no_tighten:  # the prediction derating without the tightening of the disc rows
             from sanav_mj.control.prediction import PredictionDerating
@@ -249,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="discs mode: corridor and reference from the pose search or the corridor planner "
                         "(MPCConfig.footprint_route; default: the config's)")
     c.add_argument("--box-margin", type=float, default=None,
-                   help="[m] discs mode: MPCConfig.box_margin (default: the config's)")
+                   help="[m] discs mode: MPCConfig.footprint_box_margin (default: the config's)")
     c.add_argument("--narrow-penalty", type=float, default=None,
                    help="[m] discs mode: corridor weight added per edge through a place too narrow to turn")
     c.add_argument("--no-tighten", action="store_true",

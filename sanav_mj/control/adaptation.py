@@ -250,7 +250,10 @@ class PlantAdaptation:
         """(3,) [m, m, rad] the measured (finite) ``pose`` fused with ``velocity`` by the pose filter."""
         if self.pose_filter is None:
             return pose
-        return self.pose_filter.update(pose, velocity)
+        est = self.pose_filter.update(pose, velocity)
+        if self.prediction is not None:
+            self.prediction.observe_estimate(pose, est)
+        return est
 
     def traction_accel(self, current: float) -> float:
         """[m/s^2] the next rate bound of the speed from the monitor's traction evidence.

@@ -242,7 +242,9 @@ class MPCConfig(TrackingConfig):
             such steps, <= 3.6 cm after braking steps (which the argument does not cover;
             docs/results.md, "Sizing the margin from the measured error"). Default 0.04: covers
             both measured values (0 collisions in 100 nominal and 100 corner runs; smallest
-            true footprint clearance at the corner 3.9 cm, 2.1 cm at 0.02).
+            true footprint clearance at the corner 3.9 cm, 2.1 cm at 0.02). With the boxes
+            unshrunk (``footprint_box_margin`` 0, the default since h14safe0) the largest
+            excursion measured is 2.8 cm nominal and 3.9 cm at the corner (below 0.04).
         footprint_narrow_penalty: [m] ``"discs"`` mode: added to the corridor search's weight
             of every edge through a place where the circumscribed-disc map has no room
             (:func:`sanav_mj.eval.episode.planning_areas`), so the corridor keeps to passages
@@ -271,6 +273,20 @@ class MPCConfig(TrackingConfig):
         footprint_grow_tighten: [m] with ``footprint_grow > 0``: the room growth adds to a
             stage box is tightened by this much more than ``box_margin`` (the plain box's
             room is kept), for the tracking error under model mismatch.
+        footprint_box_margin: [m] ``"discs"`` mode: what ``box_margin`` is in the disc mode,
+            used instead of it wherever the discs mode shrinks a stage box (the corridor chain,
+            the pose route's per-disc chains and pose search, the J_SA slots) and grows it back
+            (the fallback's shift check, :attr:`~sanav_mj.control.tracking.TrackingMPC.position_slack`);
+            in [0, 1). See :attr:`stage_box_margin`. Default 0: the stage boxes are the
+            chain members; what a fixed shrink covered is covered by the online tightening
+            (``footprint_prediction``: the measured prediction error plus the pose
+            estimate's offset from the measurement). Measured on the 100 BARN-like worlds
+            (seed 0; docs/results.md "Tight spaces"): nominal 95 / 100 (BARN 0.435; 87 at
+            0.02, 92 at 0.01), 0 collisions, largest true excursion of a disc centre outside
+            every safe area 2.8 cm; at the envelope corner 89 / 100, 0 collisions, largest
+            excursion 3.9 cm, smallest true clearance 4.3 cm: within ``footprint_margin``
+            both, by measurement (:mod:`sanav_mj.control.prediction` says which steps its
+            argument covers). Lidar runs use ``box_margin`` (:func:`sanav_mj.eval.episode.lidar_spec`).
         footprint_prediction: ``"discs"`` mode: derate the speed and yaw-rate bounds by the
             one-step prediction error of the disc centres measured online, and (its
             ``tighten``, on) shrink the disc rows' stage boxes by that error with a relaxation
@@ -293,6 +309,7 @@ class MPCConfig(TrackingConfig):
     footprint_refine_width: float = 0.25
     footprint_grow: float = 1.0
     footprint_grow_tighten: float = 0.0
+    footprint_box_margin: float = 0.0
     footprint_prediction: PredictionDerating | None = PredictionDerating()
 
     def __post_init__(self) -> None:
@@ -332,9 +349,18 @@ class MPCConfig(TrackingConfig):
         if self.footprint_prediction is not None and not isinstance(self.footprint_prediction, PredictionDerating):
             raise ValueError(f"MPCConfig.footprint_prediction must be a PredictionDerating or None, "
                              f"got {self.footprint_prediction!r}")
+        fb = self.footprint_box_margin
+        if isinstance(fb, bool) or not (isinstance(fb, (int, float)) and math.isfinite(fb) and 0 <= fb < 1):
+            raise ValueError(f"MPCConfig.footprint_box_margin must be a number in [0, 1) m, got {fb!r}")
         fg = self.footprint_grow
         if isinstance(fg, bool) or not (isinstance(fg, (int, float)) and math.isfinite(fg) and 0 <= fg <= 10):
             raise ValueError(f"MPCConfig.footprint_grow must be a number in [0, 10] m, got {fg!r}")
+
+    @property
+    def stage_box_margin(self) -> float:
+        """[m] the margin the stage boxes are shrunk by: ``footprint_box_margin`` in
+        ``"discs"`` mode, else ``box_margin``."""
+        return float(self.footprint_box_margin) if self.footprint == "discs" else self.box_margin
 
     def tracking(self) -> TrackingConfig:
         """The core's part of this configuration (the same values)."""

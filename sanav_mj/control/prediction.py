@@ -18,8 +18,8 @@ yaw-rate bounds are lowered by it, like the excursion and residual derating of
 A plant the model does not predict is driven slowly, which shrinks both its stopping
 distance and the error per period (the errors measured scale with the speed).
 
-Measured (100 BARN-like worlds, seed 0, margin 0.02 m, defaults ``free`` 0.008 m, ``stop``
-0.03 m): nominally the error stays below ``free`` and every run is identical to the run
+Measured (100 BARN-like worlds, seed 0, margin 0.02 m, then defaults ``free`` 0.008 m, ``stop``
+0.03 m; ``stop`` is 0.02 m since h14safe0, see "The estimate's offset"): nominally the error stays below ``free`` and every run is identical to the run
 without the derating (79 / 100); at the envelope corner the largest true excursion of a disc
 centre outside every safe area fell from 13.0 to 2.6 cm, the smallest true clearance of the
 footprint rose from 0.1 cm (one collision) to 3.6 cm, 82 / 100 reach the goal (77 before),
@@ -60,17 +60,46 @@ the applied plan's stage 1 puts it.
    after an accepted or shifted plan cannot touch while ``e <= footprint_margin`` (``<=
    footprint_margin + box_margin`` where the box is at least ``4 box_margin`` wide).
 
+**The estimate's offset** (``bias_window``, ``bias_weight``; measured 2026-11-24, branch
+h14safe0). The boxes hold the *estimated* disc centres; the true ones are off by the pose
+filter's error. Under pose noise the filter (:class:`~sanav_mj.control.monitor.PoseFilter`)
+trusts the measured body velocity, and when the plant slips sideways (which that velocity
+does not show) its estimate drifts from the truth: at the envelope's corner on barn_0010 by
+6.7 cm within five periods of a 1.15 m/s turn, while the one-step error the monitor sees
+(estimate against prediction, both in the drifting frame) read 2.7 cm; accepted plans held
+the estimate in its boxes and the true front centre left every safe area by 7.5 cm. The
+measurement itself is unbiased, so :attr:`PredictionMonitor.bias`, the norm of the mean of
+``measured - estimate`` at the disc centres over the last ``bias_window`` steps, shows the
+drift (white noise of std ``sigma`` averages to about ``1.25 sigma / sqrt(bias_window)``, 1.1
+cm at the corner's 1.75 cm), and it is added to ``delta``: the boxes shrink by what the
+estimate may be off. Without pose noise the filter passes the measurement through, the bias
+is exactly 0 and nothing changes. Together with the stronger derating (``stop`` 0.02 m
+instead of 0.03: a mispredicted plant is driven slower, which shortens the braking paths
+below), with the stage boxes unshrunk (``MPCConfig.footprint_box_margin`` 0), measured on the
+100 BARN-like worlds (docs/results.md, "Tight spaces"): nominal unchanged (95 / 100, the
+error stays below ``free``), at the corner the largest true excursion of a disc centre
+outside every safe area fell from 7.5 to 3.9 cm (<= the 0.04 m ``footprint_margin``; 89
+instead of 91 / 100 reach the goal, 0 collisions, smallest true clearance 4.3 instead of 1.1
+cm); on barn_0010 alone 7.5 cm before, 4.8 cm with the stronger derating only, 0 with both.
+What remains at the corner (barn_0071, 3.9 cm on accepted steps) is the estimate's *noise*
+(2 cm there), which the bias does not see, where the boxes are too narrow to shrink by
+the whole ``delta`` (a quarter of the width per side at most).
+
 What this assumes and does not cover, honestly: ``e`` is the true error, while the monitor
 measures the *estimated* state (pose filter, latency compensation with the identified delay)
-against the prediction, so the estimation error enters both ways; the window's maximum
-bounds the next period's error only if the error changes slowly (a turn that starts to slip
+against the prediction, so the estimation error enters both ways (the bias term covers the
+estimate's slow drift, not its noise); the window's maximum bounds the next period's error only if the error changes slowly (a turn that starts to slip
 is seen one period late); between samples a disc centre leaves its chord by < 1 mm
 (``tighten_extra`` covers it). **Braking steps are outside the argument**: the braking
 fallback's path is not held to the boxes; it steers at most at the derated yaw rate and its
 candidates are scored on the identified response
 (:meth:`~sanav_mj.control.adaptation.PlantAdaptation.brake_response`), but a robot braking from speed ``v`` travels about
 ``v^2 / (2 a_max)`` on a model that mispredicts by ``e`` per period; only the derating's
-lower speed limits that. Nor are the steps from rest. The footprint margin is therefore
+lower speed limits that. Nor are the steps from rest: with the boxes unshrunk the largest
+nominal excursion (2.8 cm, barn_0095) builds up in a loop of plans from rest and braking
+steps, where the widening that follows the resting robot lets a plan slide along the
+outside of its stage box (the centre lay 3.3 cm beyond the box but only 1 cm outside the
+union of the safe areas) and the next, moving step finds no plan back in. The footprint margin is therefore
 sized from the error measured under the envelope (docs/results.md, "Tight spaces": the
 largest excursion of every run and where it came from), not guaranteed by this argument.
 """
@@ -107,16 +136,21 @@ class PredictionDerating:
             rasteriser-scale millimetre.
         tighten_max: [m] the tightening never exceeds this (> 0); each box is in any case
             shrunk by at most a quarter of its width (:func:`~sanav_mj.control.stages.shrink_box`).
+        bias_window: steps over which the pose filter's offset from the measured pose is
+            averaged for :attr:`PredictionMonitor.bias` (>= 1).
+        bias_weight: weight (>= 0) of :attr:`PredictionMonitor.bias` in the tightening; 0: off.
     """
 
     free: float = 0.008
-    stop: float = 0.03
+    stop: float = 0.02
     floor: float = 0.25
     yaw_floor: float = 0.3
     window: int = 20
     tighten: bool = True
     tighten_extra: float = 0.002
     tighten_max: float = 0.05
+    bias_window: int = 4
+    bias_weight: float = 1.0
 
     def __post_init__(self) -> None:
         ok = all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
@@ -137,6 +171,11 @@ class PredictionDerating:
             raise ValueError(f"PredictionDerating.tighten_extra must be a finite number >= 0 m, got {te!r}")
         if not (isinstance(tm, (int, float)) and not isinstance(tm, bool) and math.isfinite(tm) and tm > 0):
             raise ValueError(f"PredictionDerating.tighten_max must be a positive finite number of m, got {tm!r}")
+        bw, bg = self.bias_window, self.bias_weight
+        if isinstance(bw, bool) or not (isinstance(bw, int) and bw >= 1):
+            raise ValueError(f"PredictionDerating.bias_window must be an integer >= 1, got {bw!r}")
+        if isinstance(bg, bool) or not (isinstance(bg, (int, float)) and math.isfinite(bg) and bg >= 0):
+            raise ValueError(f"PredictionDerating.bias_weight must be a finite number >= 0, got {bg!r}")
 
 
 class PredictionMonitor:
@@ -156,6 +195,7 @@ class PredictionMonitor:
         """Forget the episode."""
         self._expected: np.ndarray | None = None
         self._errors: deque[float] = deque(maxlen=self.config.window)
+        self._offsets: deque[np.ndarray] = deque(maxlen=self.config.bias_window)
 
     def expect(self, state: np.ndarray | None) -> None:
         """The state (3,) [m, m, rad] the applied plan predicts for the next step's effective
@@ -175,6 +215,29 @@ class PredictionMonitor:
         self._expected = None
         return e
 
+    def observe_estimate(self, measured: np.ndarray, estimate: np.ndarray) -> None:
+        """Fold in this step's measured pose (3,) and the pose filter's estimate (3,) [m, m,
+        rad]: their disc centres' offsets (D, 2) [m] ``measured - estimate`` enter :attr:`bias`."""
+        a = disc_centres(np.asarray(measured, dtype=float).reshape(1, 3), self.offsets)[0]
+        b = disc_centres(np.asarray(estimate, dtype=float).reshape(1, 3), self.offsets)[0]
+        d = a - b
+        if np.all(np.isfinite(d)):
+            self._offsets.append(d)
+
+    @property
+    def bias(self) -> float:
+        """[m] how far the pose filter's estimate sits from the measurement, systematically:
+        the largest over the disc centres of the norm of the mean offset ``measured -
+        estimate`` over the last ``bias_window`` steps (0 before any; exactly 0 while the
+        filter passes the measurement through, e.g. without pose noise). White measurement
+        noise of std ``sigma`` per axis averages to about ``1.25 sigma / sqrt(bias_window)``;
+        an estimate that drifts from the truth (slip the measured body velocity does not
+        show) by ``b`` adds about ``b``."""
+        if not self._offsets:
+            return 0.0
+        m = np.mean(np.asarray(self._offsets), axis=0)
+        return float(np.max(np.hypot(*m.T)))
+
     @property
     def error(self) -> float:
         """[m] the largest error over the window (0 before any)."""
@@ -188,12 +251,14 @@ class PredictionMonitor:
 
     def tightening(self) -> float:
         """[m] how much the disc rows' stage boxes are shrunk this step: ``min(error +
-        tighten_extra, tighten_max)`` (:attr:`error` the largest measured one-step error over
-        the window), 0 when ``tighten`` is off."""
+        tighten_extra + bias_weight bias, tighten_max)`` (:attr:`error` the largest measured
+        one-step error over the window, :attr:`bias` the estimate's offset from the
+        measurement), 0 when ``tighten`` is off."""
         c = self.config
         if not c.tighten:
             return 0.0
-        return min(self.error + c.tighten_extra, c.tighten_max)
+        b = c.bias_weight * self.bias if c.bias_weight > 0 else 0.0
+        return min(self.error + c.tighten_extra + b, c.tighten_max)
 
     def yaw_fraction(self) -> float:
         """Fraction of ``w_max`` the yaw-rate bound keeps: :meth:`fraction`, not below ``yaw_floor``."""

@@ -106,7 +106,7 @@ def _disc_constraints(ctl: SAMPC, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.n
     else:  # a pose route: its reference walks every disc's chain; targets stay as planned
         xr, ur = x_ref, u_ref
         theta = sa_params_of_ids(ctl._rects, DiscCover.area_ids(ctl.disc_chains, ss), ctl.penalty.n_slots,
-                                 ctl._q_sa, ctl.config.box_margin)
+                                 ctl._q_sa, ctl.config.stage_box_margin)
     shift = None if tight is None else _shift_bounds(ctl, ss, guess[0], tight[1])
     return Constraints(*DiscCover.bounds(bs), theta, xr, ur, excursion, (ss[c], bs[c], ss, bs), shift)
 
@@ -423,7 +423,7 @@ class SAMPC(TrackingMPC):
         dt = float(config.dt)
         adaptation = PlantAdaptation(robot, dt, limits.v_max, limits.w_max, limits.a_max,
                                      limits.lower(), limits.upper(), config.adaptation)
-        self._set_plan(areas, plan, config.box_margin, dt)
+        self._set_plan(areas, plan, config.stage_box_margin, dt)
         self.penalty = SafeAreaPenalty(len(config.q_sa))
         self.discs: DiscCover | None = None
         if config.footprint == "discs":
@@ -434,7 +434,7 @@ class SAMPC(TrackingMPC):
         pts = None if self.discs is None else self.discs.offsets
         ocp = build_tracking_ocp(config.horizon, dt, self.penalty, position_constraints=True, points=pts)
         super().__init__(robot, config, limits, ocp, adaptation, failure_injector=failure_injector)
-        self.position_slack = config.box_margin
+        self.position_slack = config.stage_box_margin
         if self.discs is not None and config.footprint_prediction is not None:
             self.adaptation.prediction = PredictionMonitor(self.discs.offsets, config.footprint_prediction)
         self._q_sa = np.asarray(config.q_sa, float)
@@ -454,7 +454,7 @@ class SAMPC(TrackingMPC):
         reference's start. Raises ValueError as the constructor for a bad plan."""
         if not plan.ok or plan.reference is None or len(plan.reference) < 1:
             raise ValueError(f"plan must be successful with a reference, got ok={plan.ok} reason={plan.reason!r}")
-        self._set_plan(areas, plan, self.config.box_margin, self.dt)
+        self._set_plan(areas, plan, self.config.stage_box_margin, self.dt)
         self._s_prev, self._s_prev_d, self._ref_index = None, None, 0
 
     @property
@@ -607,6 +607,6 @@ class SAMPC(TrackingMPC):
         theta = self._sa_cache.get(key)
         if theta is None:
             theta = safe_area_params(self.chain, self._rects, key, self.penalty.n_slots, self._q_sa,
-                                     self.config.box_margin, all_or_none=self.discs is not None)
+                                     self.config.stage_box_margin, all_or_none=self.discs is not None)
             self._sa_cache[key] = theta
         return theta

@@ -80,7 +80,7 @@ def _run(ctl: SAMPC, offsets: list[float]) -> list:
 
 
 def test_discs_controller_derates_its_bounds_by_the_measured_error():
-    cfg = MPCConfig(footprint="discs", adaptation=NO_ADAPTATION,
+    cfg = MPCConfig(footprint="discs", footprint_box_margin=0.02, adaptation=NO_ADAPTATION,
                     footprint_prediction=PredictionDerating(free=0.01, stop=0.06, floor=0.25, yaw_floor=0.3))
     ctl = _controller(cfg)
     assert isinstance(ctl.adaptation.prediction, PredictionMonitor)
@@ -136,7 +136,7 @@ def test_tightening_is_the_window_maximum_plus_the_constant_capped():
 
 
 def test_discs_controller_tightens_its_stage_boxes_by_the_measured_error():
-    cfg = MPCConfig(footprint="discs", adaptation=NO_ADAPTATION,
+    cfg = MPCConfig(footprint="discs", footprint_box_margin=0.02, adaptation=NO_ADAPTATION,
                     footprint_prediction=PredictionDerating(free=0.01, stop=0.06, floor=0.25, yaw_floor=0.3,
                                                             tighten_extra=0.002))
     ctl = _controller(cfg)
@@ -154,7 +154,7 @@ def test_discs_controller_tightens_its_stage_boxes_by_the_measured_error():
 
 
 def test_tightening_off_keeps_the_plain_relaxation():
-    cfg = MPCConfig(footprint="discs", adaptation=NO_ADAPTATION,
+    cfg = MPCConfig(footprint="discs", footprint_box_margin=0.02, adaptation=NO_ADAPTATION,
                     footprint_prediction=PredictionDerating(tighten=False))
     ctl = _controller(cfg)
     steps = _run(ctl, [0.0] * 4 + [0.035, 0.0])
@@ -162,7 +162,7 @@ def test_tightening_off_keeps_the_plain_relaxation():
 
 
 def test_braking_candidates_steer_within_the_derated_yaw_rate_on_the_identified_response():
-    cfg = MPCConfig(footprint="discs", adaptation=NO_ADAPTATION,
+    cfg = MPCConfig(footprint="discs", footprint_box_margin=0.02, adaptation=NO_ADAPTATION,
                     footprint_prediction=PredictionDerating(free=0.01, stop=0.06, floor=0.25, yaw_floor=0.3))
     ctl = _controller(cfg)
     _run(ctl, [0.0] * 3 + [0.035, 0.0])
@@ -188,7 +188,7 @@ def test_the_shift_check_reads_the_untightened_unrelaxed_boxes_while_moving(dy):
     from sanav_mj.control.disc_stages import DiscCover
     from sanav_mj.control.stages import stage_boxes
 
-    cfg = MPCConfig(footprint="discs", adaptation=NO_ADAPTATION, footprint_prediction=PredictionDerating())
+    cfg = MPCConfig(footprint="discs", footprint_box_margin=0.02, adaptation=NO_ADAPTATION, footprint_prediction=PredictionDerating())
     ctl = _controller(cfg)
     _run(ctl, [0.0] * 6 + [dy, 0.0])
     assert abs(ctl.u_prev[0]) > 0.02  # moving: no relaxation in the shift check
@@ -207,3 +207,95 @@ def test_the_shift_check_reads_the_untightened_unrelaxed_boxes_while_moving(dy):
     # the problem the fallback checks carries them
     prob = ctl._pose(info.guess_states[0], con, info.guess, info.guess_states)
     assert prob.shift_bounds is con.shift_bounds
+
+
+# ---------------------------------------------------------------- the estimate's offset (bias)
+
+
+@pytest.mark.parametrize("kw, match", [(dict(bias_window=0), "bias_window"), (dict(bias_window=True), "bias_window"),
+                                       (dict(bias_weight=-0.5), "bias_weight"),
+                                       (dict(bias_weight=math.nan), "bias_weight")])
+def test_bias_config_rejects_bad_values(kw, match):
+    with pytest.raises(ValueError, match=match):
+        PredictionDerating(**kw)
+
+
+def test_bias_is_the_norm_of_the_mean_offset_of_the_measurement_from_the_estimate():
+    mon = PredictionMonitor(OFFSETS, PredictionDerating(bias_window=3, tighten_extra=0.002, bias_weight=1.0))
+    assert mon.bias == 0.0 and mon.tightening() == pytest.approx(0.002, abs=1e-15)
+    est = np.array([1.0, 2.0, 0.0])
+    mon.observe_estimate(est, est)  # the filter passed the measurement through
+    assert mon.bias == 0.0
+    # translations: every disc centre is offset alike; the mean of (0, 0), (0.03, 0.04), (0.03, -0.04) is (0.02, 0)
+    mon.observe_estimate(est + [0.03, 0.04, 0.0], est)
+    mon.observe_estimate(est + [0.03, -0.04, 0.0], est)
+    assert mon.bias == pytest.approx(0.02, abs=1e-15)
+    assert mon.tightening() == pytest.approx(0.022, abs=1e-15)  # error 0 + 0.002 + bias
+    mon.observe_estimate(est + [0.03, 0.0, 0.0], est)  # the window (3) forgets the zero offset
+    assert mon.bias == pytest.approx(0.03, abs=1e-15)
+    # a yaw offset moves the outer centres by their distance 1/6 m times the chord factor
+    rot = PredictionMonitor(OFFSETS, PredictionDerating(bias_window=1))
+    rot.observe_estimate(est + [0.0, 0.0, 0.1], est)
+    assert rot.bias == pytest.approx(2 * (0.5 / 3) * math.sin(0.05), abs=1e-15)
+    # weighted, capped, and off with the tightening
+    half = PredictionMonitor(OFFSETS, PredictionDerating(bias_window=1, bias_weight=0.5, tighten_extra=0.0))
+    half.observe_estimate(est + [0.04, 0.0, 0.0], est)
+    assert half.tightening() == pytest.approx(0.02, abs=1e-15)
+    half.observe_estimate(est + [0.4, 0.0, 0.0], est)
+    assert half.tightening() == 0.05
+    off = PredictionMonitor(OFFSETS, PredictionDerating(bias_window=1, tighten=False))
+    off.observe_estimate(est + [0.04, 0.0, 0.0], est)
+    assert off.tightening() == 0.0
+    mon.reset()
+    assert mon.bias == 0.0
+
+
+def test_the_plant_adaptation_feeds_the_pose_filters_offset_to_the_monitor():
+    cfg = MPCConfig(footprint="discs", footprint_prediction=PredictionDerating(bias_window=2, tighten_extra=0.0))
+    ctl = _controller(cfg)
+    ad = ctl.adaptation
+    assert ad.pose_filter is not None
+    ad.pose_filter.update = lambda pose, velocity: np.asarray(pose, float) - [0.0, 0.03, 0.0]  # an estimate 3 cm off
+    out = ad.filter(np.array([1.0, 0.0, 0.0]), np.zeros(2))
+    np.testing.assert_allclose(out, [1.0, -0.03, 0.0], atol=1e-15)
+    assert ad.prediction.bias == pytest.approx(0.03, abs=1e-15)
+    assert ad.prediction.tightening() == pytest.approx(0.03, abs=1e-15)
+    # the disc mode has no monitor: the filter's estimate, nothing else
+    disc = _controller(MPCConfig())
+    disc.adaptation.pose_filter.update = lambda pose, velocity: np.asarray(pose, float) - [0.0, 0.03, 0.0]
+    np.testing.assert_allclose(disc.adaptation.filter(np.array([1.0, 0.0, 0.0]), np.zeros(2)), [1.0, -0.03, 0.0])
+    assert disc.adaptation.prediction is None
+
+
+def _corner_excursion(tmp_path, mpc: MPCConfig) -> tuple[float, dict]:
+    """barn_0010 of the 100 BARN-like worlds at the robustness envelope's corner: the largest
+    distance [m] of a true disc centre outside every safe area, and the run document."""
+    from sanav_mj.control.footprint import disc_centres
+    from sanav_mj.control.spec import ControllerSpec
+    from sanav_mj.eval.episode import run_scenario
+    from sanav_mj.footprint import robot_footprint
+    from sanav_mj.generate import write_barn_scenario
+    from sanav_mj.sim.mismatch import Mismatch
+
+    path = write_barn_scenario(10, tmp_path / "barn_0010.xml")
+    mm = Mismatch(wheel_radius=1.1, track=0.9, friction=0.3, delay=1, pos_noise=0.02, yaw_noise=0.035)
+    out = run_scenario(path, seed=0, mismatch=mm, controller_spec=ControllerSpec("sa-mpc", mpc))
+    d = out.document
+    rects = np.asarray(out.prepared.areas.rects)
+    off = robot_footprint(out.prepared.scenario.model).discs(mpc.footprint_discs)[0]
+    c = disc_centres(np.column_stack([d["trace"]["x"], d["trace"]["y"], d["trace"]["yaw"]]), off).reshape(-1, 2)
+    dx = np.maximum(np.maximum(rects[None, :, 0] - c[:, None, 0], c[:, None, 0] - rects[None, :, 2]), 0.0)
+    dy = np.maximum(np.maximum(rects[None, :, 1] - c[:, None, 1], c[:, None, 1] - rects[None, :, 3]), 0.0)
+    return float(np.hypot(dx, dy).min(axis=1).max()), d
+
+
+def test_corner_run_keeps_the_true_disc_centres_within_the_footprint_margin(tmp_path):
+    # Regression (h14safe0): with the stage boxes unshrunk (footprint_box_margin 0), the pose
+    # filter's estimate drifted 6.7 cm from the true pose under slip while accepted plans held
+    # the *estimate* in the boxes; the true centre left every safe area by 7.5 cm (4.8 cm with
+    # the stronger derating alone, bias_weight 0). The bias term of the tightening: 0.0 cm.
+    mpc = MPCConfig(footprint="discs")
+    assert mpc.footprint_box_margin == 0.0
+    exc, d = _corner_excursion(tmp_path, mpc)
+    assert d["collisions"] == 0
+    assert exc <= mpc.footprint_margin

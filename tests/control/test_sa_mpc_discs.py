@@ -19,7 +19,7 @@ from sanav_mj.footprint import Footprint
 from mpc_cases import L_RECTS, L_WAYPOINTS, ROBOT, make_areas, make_plan
 
 FP = Footprint(-0.25, 0.25, -0.215, 0.215)  # the packaged robot's deck
-DISCS = MPCConfig(footprint="discs", footprint_discs=3, box_margin=0.0)
+DISCS = MPCConfig(footprint="discs", footprint_discs=3, footprint_box_margin=0.0)
 D_OFF = 0.5 / 3  # [m] the outer disc centres of the 3-disc cover sit at +-hx + hx/3
 
 
@@ -35,11 +35,29 @@ def _corridor_controller(half_width: float, length: float = 3.0, cfg: MPCConfig 
     "kw, match",
     [(dict(footprint="rectangle"), "footprint"), (dict(footprint_discs=1), "footprint_discs"),
      (dict(footprint_margin=-0.01), "footprint_margin"),
-     (dict(footprint_narrow_penalty=-1.0), "footprint_narrow_penalty")],
+     (dict(footprint_narrow_penalty=-1.0), "footprint_narrow_penalty"),
+     (dict(footprint_box_margin=-0.01), "footprint_box_margin"), (dict(footprint_box_margin=1.0), "footprint_box_margin"),
+     (dict(footprint_box_margin=True), "footprint_box_margin"), (dict(footprint_box_margin=float("nan")), "footprint_box_margin")],
 )
 def test_config_rejects_bad_footprint_fields(kw, match):
     with pytest.raises(ValueError, match=match):
         MPCConfig(**kw)
+
+
+def test_discs_mode_shrinks_its_boxes_by_its_own_margin_and_the_disc_mode_by_box_margin():
+    assert MPCConfig(box_margin=0.03, footprint_box_margin=0.01).stage_box_margin == 0.03
+    assert MPCConfig(footprint="discs", box_margin=0.03, footprint_box_margin=0.01).stage_box_margin == 0.01
+    # the chain (and the shift check's slack) of the discs mode: the safe area [0, 3] x [-0.2, 0.2]
+    # shrunk by footprint_box_margin, whatever box_margin is
+    for fb in (0.0, 0.015):
+        ctl = _corridor_controller(0.2, cfg=replace(DISCS, box_margin=0.05, footprint_box_margin=fb))
+        np.testing.assert_allclose(ctl.chain.stay[0], [fb, -0.2 + fb, 3.0 - fb, 0.2 - fb], atol=1e-15)
+        assert ctl.position_slack == fb
+    areas = make_areas([[0.0, -0.2, 3.0, 0.2]])
+    plan = make_plan(areas, [0], [[0.3, 0.0], [2.7, 0.0]])
+    disc = SAMPC(ROBOT, areas, plan, MPCConfig(box_margin=0.05, footprint_box_margin=0.0))
+    np.testing.assert_allclose(disc.chain.stay[0], [0.05, -0.15, 2.95, 0.15], atol=1e-15)
+    assert disc.position_slack == 0.05
 
 
 def test_discs_mode_needs_the_footprint():

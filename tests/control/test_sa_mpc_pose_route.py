@@ -13,7 +13,7 @@ from sanav_mj.planning.reference import Plan, Reference
 from mpc_cases import ROBOT, make_areas
 
 FP = Footprint(-0.25, 0.25, -0.215, 0.215)
-DISCS = MPCConfig(footprint="discs", footprint_discs=3, box_margin=0.0)
+DISCS = MPCConfig(footprint="discs", footprint_discs=3, footprint_box_margin=0.0)
 # A on the left; B (lower) and C (upper) on the right, both adjacent to A and to each other
 RECTS = [[0.0, 0.0, 1.0, 1.0], [1.0, 0.0, 2.0, 0.5], [1.0, 0.5, 2.0, 1.0]]
 

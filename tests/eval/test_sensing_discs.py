@@ -17,6 +17,7 @@ import pytest
 
 from sanav_mj.eval.episode import (DEFAULT_MARGIN_M, footprint_spec, lidar_controller, lidar_spec, prepare,
                                    run_scenario)
+from sanav_mj.control.prediction import PredictionDerating
 from sanav_mj.footprint import robot_footprint
 from sanav_mj.scene import load_scenario
 
@@ -146,8 +147,16 @@ def test_discs_lidar_refuses_or_drops_known_map_only_settings():
     assert (used.footprint_grow, used.footprint_refine) == (0.0, 1)
     # the tightening's bound assumes the measured state is the true one: off with the localiser
     assert grown.sa_mpc.footprint_prediction.tighten and not used.footprint_prediction.tighten
-    assert used == replace(grown.sa_mpc, footprint_grow=0.0, footprint_refine=1,
-                           footprint_prediction=replace(grown.sa_mpc.footprint_prediction, tighten=False))
+    # the known map's footprint_box_margin (0) is sized from that map's measured error; the lidar run keeps box_margin
+    assert grown.sa_mpc.footprint_box_margin == 0.0 and used.footprint_box_margin == grown.sa_mpc.box_margin == 0.02
+    # and the derating it was measured with (stop 0.03; the known map's 0.02 stalled complex/2)
+    assert grown.sa_mpc.footprint_prediction.stop == 0.02 and used.footprint_prediction.stop == 0.03
+    assert used == replace(grown.sa_mpc, footprint_grow=0.0, footprint_refine=1, footprint_box_margin=0.02,
+                           footprint_prediction=replace(grown.sa_mpc.footprint_prediction, tighten=False, stop=0.03))
+    # a larger stop (a gentler derating) is kept; the tightening still goes
+    own = replace(grown, sa_mpc=replace(grown.sa_mpc, footprint_prediction=PredictionDerating(stop=0.05)))
+    assert lidar_spec(own).sa_mpc.footprint_prediction == PredictionDerating(stop=0.05, tighten=False)
+    assert lidar_spec(lidar_spec(grown)) == lidar_spec(grown)
     assert lidar_spec(footprint_spec()) == footprint_spec()
 
 
