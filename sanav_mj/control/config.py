@@ -278,6 +278,15 @@ class MPCConfig(TrackingConfig):
             (:class:`sanav_mj.control.prediction.PredictionDerating`, whose module docstring
             gives why this bounds the excursion and what it assumes); None: off. Unused in
             ``"disc"`` mode.
+        footprint_open_speed: ``"discs"`` mode with a known map: None (one reference speed
+            everywhere, 0.8 of ``v_max``) or the reference's top speed in open space as a
+            fraction of the resolved ``v_max`` (:func:`sanav_mj.eval.episode.planner_config`,
+            :attr:`sanav_mj.planning.PlannerConfig.open_speed_fraction`): at path nodes whose
+            centre has ``footprint_open_room`` of free inflated cells on every side; 0.8 of
+            ``v_max`` elsewhere, slowing down before narrow places. Unused in ``"disc"`` mode
+            and with the lidar (not measured there).
+        footprint_open_room: [m] that room (the half-side of a free square of cells around
+            the node, in the map inflated by the disc radius and margin).
     """
 
     q_sa: tuple[float, ...] = (5.0, 5.0)
@@ -294,6 +303,8 @@ class MPCConfig(TrackingConfig):
     footprint_grow: float = 1.0
     footprint_grow_tighten: float = 0.0
     footprint_prediction: PredictionDerating | None = PredictionDerating()
+    footprint_open_speed: float | None = None
+    footprint_open_room: float = 0.15
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -332,6 +343,12 @@ class MPCConfig(TrackingConfig):
         if self.footprint_prediction is not None and not isinstance(self.footprint_prediction, PredictionDerating):
             raise ValueError(f"MPCConfig.footprint_prediction must be a PredictionDerating or None, "
                              f"got {self.footprint_prediction!r}")
+        fo = self.footprint_open_speed
+        if fo is not None and (isinstance(fo, bool) or not (isinstance(fo, (int, float)) and 0 < fo <= 1)):
+            raise ValueError(f"MPCConfig.footprint_open_speed must be None or a fraction in (0, 1], got {fo!r}")
+        fr_ = self.footprint_open_room
+        if isinstance(fr_, bool) or not (isinstance(fr_, (int, float)) and math.isfinite(fr_) and 0 <= fr_ < 5):
+            raise ValueError(f"MPCConfig.footprint_open_room must be a number in [0, 5) m, got {fr_!r}")
         fg = self.footprint_grow
         if isinstance(fg, bool) or not (isinstance(fg, (int, float)) and math.isfinite(fg) and 0 <= fg <= 10):
             raise ValueError(f"MPCConfig.footprint_grow must be a number in [0, 10] m, got {fg!r}")
