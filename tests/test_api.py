@@ -165,7 +165,7 @@ def test_lidar_run_with_the_discs_footprint():
     doc = res.to_dict()
     assert doc["success"] and doc["collisions"] == 0 and doc["sensing"] == "lidar"
     assert doc["footprint"] == {"mode": "discs", "discs": 3, "margin_m": 0.05, "route": "corridor", "refine": 1,
-                                "grow_m": 0.0}
+                                "grow_m": 0.0, "open_speed": None}
     fp = sanav_mj.footprint.robot_footprint(res.prepared.scenario.model)
     assert res.sensed.map.grid.inflation == fp.discs(3)[1] + 0.05
     with pytest.raises(ValueError, match="footprint_route"):

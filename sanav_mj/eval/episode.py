@@ -84,7 +84,8 @@ def planner_config(robot, spec: ControllerSpec = ControllerSpec()) -> Any:
     """Planner settings matched to the SA-MPC of ``spec``: the reference's speed, yaw-rate and
     acceleration caps are the planner's default fractions (0.8) of the MPC's resolved input
     and rate bounds (``spec.sa_mpc.limits(robot)``), not of the robot's, and its period is
-    the MPC's ``dt``. A reference faster than the MPC may drive (1.6 m/s against 1.43 m/s
+    the MPC's ``dt``. In ``"discs"`` mode ``MPCConfig.footprint_open_speed`` (a fraction of
+    the resolved ``v_max``) becomes the open-space speed of the reference. A reference faster than the MPC may drive (1.6 m/s against 1.43 m/s
     for the MuJoCo robot) leaves the robot lagging behind it.
 
     Args:
@@ -99,25 +100,30 @@ def planner_config(robot, spec: ControllerSpec = ControllerSpec()) -> Any:
     base = PlannerConfig()
     mpc = spec.sa_mpc
     lim = mpc.limits(robot)
+    open_ = mpc.footprint_open_speed if mpc.footprint == "discs" else None
     return PlannerConfig(
         dt=mpc.dt,
         speed_fraction=min(1.0, base.speed_fraction * lim.v_max / robot.v_max),
         yaw_rate_fraction=min(1.0, base.yaw_rate_fraction * lim.w_max / robot.w_max),
         accel_fraction=min(1.0, base.accel_fraction * lim.a_max / robot.a_max),
+        open_speed_fraction=None if open_ is None else min(1.0, open_ * lim.v_max / robot.v_max),
+        open_room=mpc.footprint_open_room if open_ is not None else base.open_room,
     )
 
 
 def footprint_fields(spec: ControllerSpec) -> dict[str, Any]:
     """The run document's ``"footprint"`` entry for ``spec``'s SA-MPC footprint mode: empty
     for the default ``"disc"`` mode (its documents are unchanged), else ``{"footprint":
-    {"mode", "discs", "margin_m", "route", "refine", "grow_m"}}`` so a discs-mode document
-    says which settings made it (as ``"sensing"`` marks a lidar run)."""
+    {"mode", "discs", "margin_m", "route", "refine", "grow_m", "open_speed"}}`` so a discs-mode
+    document says which settings made it (as ``"sensing"`` marks a lidar run); ``open_speed``
+    is ``MPCConfig.footprint_open_speed`` (None: one reference speed)."""
     mpc = spec.sa_mpc
     if spec.name != "sa-mpc" or mpc.footprint == "disc":
         return {}
     return {"footprint": {"mode": mpc.footprint, "discs": int(mpc.footprint_discs),
                           "margin_m": float(mpc.footprint_margin), "route": mpc.footprint_route,
-                          "refine": int(mpc.footprint_refine), "grow_m": float(mpc.footprint_grow)}}
+                          "refine": int(mpc.footprint_refine), "grow_m": float(mpc.footprint_grow),
+                          "open_speed": None if mpc.footprint_open_speed is None else float(mpc.footprint_open_speed)}}
 
 
 def footprint_spec(controller: str = "sa-mpc", footprint: str = "disc") -> ControllerSpec:
@@ -514,7 +520,8 @@ LIDAR_PREDICTION_STOP_M = 0.03
 
 def lidar_spec(cspec: ControllerSpec) -> ControllerSpec:
     """``cspec`` as a lidar run uses it: in ``"discs"`` mode with ``footprint_refine`` 1,
-    ``footprint_grow`` 0, the stage boxes shrunk by ``box_margin``, the prediction monitor's
+    ``footprint_grow`` 0, the stage boxes shrunk by ``box_margin``, no open-space speed
+    (``footprint_open_speed`` None: not measured with the lidar), the prediction monitor's
     box tightening off and its derating's ``stop`` at least :data:`LIDAR_PREDICTION_STOP_M`;
     ``cspec`` itself otherwise.
 
@@ -541,7 +548,7 @@ def lidar_spec(cspec: ControllerSpec) -> ControllerSpec:
     if pred is not None and (pred.tighten or pred.stop < LIDAR_PREDICTION_STOP_M):
         pred = replace(pred, tighten=False, stop=max(pred.stop, LIDAR_PREDICTION_STOP_M))
     used = replace(mpc, footprint_refine=1, footprint_grow=0.0, footprint_box_margin=mpc.box_margin,
-                   footprint_prediction=pred)
+                   footprint_open_speed=None, footprint_prediction=pred)
     return cspec if used == mpc else replace(cspec, sa_mpc=used)
 
 

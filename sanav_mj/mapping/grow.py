@@ -66,6 +66,36 @@ class FreeCells:
         s = self.sat
         return int(s[i1, j1] - s[i0, j1] - s[i1, j0] + s[i0, j0])
 
+    def squares_free(self, points, half: float) -> np.ndarray:
+        """Whether the square of half-side ``half`` [m] around each point holds only free cells.
+
+        The square is rounded outwards to whole cells (every cell it touches counts), and a
+        square reaching beyond the grid is not free: a ``True`` is a proof, never a guess.
+
+        Args:
+            points: (K, 2) [m] world x, y.
+            half: [m] half-side of the square (>= 0).
+
+        Returns:
+            (K,) bool.
+        """
+        if not (np.isfinite(half) and half >= 0):
+            raise ValueError(f"half must be finite and >= 0 [m], got {half!r}")
+        p = np.asarray(points, dtype=float).reshape(-1, 2)
+        u = (p - self.origin) / self.resolution  # (K, 2) cell coordinates x (columns), y (rows)
+        h = half / self.resolution
+        j0 = np.floor(u[:, 0] - h).astype(np.int64)
+        i0 = np.floor(u[:, 1] - h).astype(np.int64)
+        j1 = np.ceil(u[:, 0] + h).astype(np.int64)
+        i1 = np.ceil(u[:, 1] + h).astype(np.int64)
+        ny, nx = self.shape
+        inside = (i0 >= 0) & (j0 >= 0) & (i1 <= ny) & (j1 <= nx) & (i1 > i0) & (j1 > j0)
+        i0, j0 = np.clip(i0, 0, ny), np.clip(j0, 0, nx)
+        i1, j1 = np.clip(i1, 0, ny), np.clip(j1, 0, nx)
+        s = self.sat
+        occ = s[i1, j1] - s[i0, j1] - s[i1, j0] + s[i0, j0]
+        return inside & (occ == 0)
+
     def cells_of(self, rect) -> tuple[int, int, int, int]:
         """Cell box ``(i0, j0, i1, j1)`` of a world rectangle (4,) [m] on the grid's lattice.
 

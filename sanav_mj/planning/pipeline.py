@@ -62,6 +62,14 @@ class PlannerConfig:
         yaw_rate_fraction: fraction of ``RobotParams.w_max`` used as the yaw-rate limit.
         accel_fraction: fraction of ``RobotParams.a_max`` used as the acceleration limit.
         lateral_accel: [m/s^2] lateral acceleration limit ``v^2 |kappa|``.
+        open_speed_fraction: None (default: one speed limit everywhere, the paper's) or a
+            fraction of ``RobotParams.v_max`` used as the top speed at the path's nodes in
+            open space: where the square of half-side ``open_room`` around the node holds
+            only free cells of the grid the areas were cut from (``SafeAreas.free``; without
+            it the option does nothing). Elsewhere ``speed_fraction`` holds, and the
+            profile's backward pass slows the reference down to it before a narrow place.
+        open_room: [m] half-side of that square (the room the robot's centre has in every
+            direction, in the inflated map).
         search: graph search, ``"astar"`` (heapq) or ``"dijkstra"`` (scipy.sparse.csgraph).
     """
 
@@ -82,6 +90,8 @@ class PlannerConfig:
     yaw_rate_fraction: float = 0.8
     accel_fraction: float = 0.8
     lateral_accel: float = 1.0
+    open_speed_fraction: float | None = None
+    open_room: float = 0.25
     search: str = "dijkstra"
 
     def __post_init__(self) -> None:
@@ -102,6 +112,11 @@ class PlannerConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0 < v <= 1):
                 raise ValueError(f"PlannerConfig.{name} must be in (0, 1], got {v!r}")
+        osf = self.open_speed_fraction
+        if osf is not None and not (isinstance(osf, (int, float)) and 0 < osf <= 1):
+            raise ValueError(f"PlannerConfig.open_speed_fraction must be None or in (0, 1], got {osf!r}")
+        if not (isinstance(self.open_room, (int, float)) and math.isfinite(self.open_room) and self.open_room >= 0):
+            raise ValueError(f"PlannerConfig.open_room must be a finite number >= 0 [m], got {self.open_room!r}")
         if not (isinstance(self.max_lambda_steps, int) and self.max_lambda_steps >= 0):
             raise ValueError(f"PlannerConfig.max_lambda_steps must be an int >= 0, got {self.max_lambda_steps!r}")
         if not (isinstance(self.lambda_factor, (int, float)) and 0 < self.lambda_factor < 1):
@@ -229,21 +244,33 @@ class _Timed:
     rounds: int  # fallback widenings needed
 
 
+def _speed_caps(nodes: np.ndarray, robot: RobotParams, cfg: PlannerConfig, free: Any) -> float | np.ndarray:
+    """The speed limit [m/s] of the profile: ``speed_fraction * v_max`` (a float), or per node
+    (N,) with ``open_speed_fraction * v_max`` where the node has ``open_room`` of free cells
+    around it in ``free`` (:class:`~sanav_mj.mapping.grow.FreeCells`, or None: the float)."""
+    v_cap = cfg.speed_fraction * robot.v_max
+    if cfg.open_speed_fraction is None or free is None:
+        return v_cap
+    open_ = free.squares_free(nodes, cfg.open_room)
+    return np.where(open_, cfg.open_speed_fraction * robot.v_max, v_cap)
+
+
 def _time_parametrise_inside(sm: SmoothingResult, crect: np.ndarray, robot: RobotParams, cfg: PlannerConfig,
-                             v_start: float = 0.0) -> _Timed:
+                             v_start: float = 0.0, free: Any = None) -> _Timed:
     """Stage 3: speed profile and samples at ``dt``; every sample checked against the corridor,
     the fallback to the polyline widened around the samples outside (at most
-    ``_MAX_SAMPLE_ROUNDS`` rounds, then the whole polyline).
+    ``_MAX_SAMPLE_ROUNDS`` rounds, then the whole polyline). ``free``: the grid's
+    :class:`~sanav_mj.mapping.grow.FreeCells` for the open-space speed (:func:`_speed_caps`).
 
     Raises:
         _NoPlan: ``unsafe_reference`` if even the polyline's samples left the corridor (a guard).
     """
-    v_cap = cfg.speed_fraction * robot.v_max
     w_cap = cfg.yaw_rate_fraction * robot.w_max
     a_cap = cfg.accel_fraction * robot.a_max
     curve, u_nodes, nodes = sm.curve, sm.u_nodes, sm.nodes
     rounds = 0
     while True:
+        v_cap = _speed_caps(nodes, robot, cfg, free)
         prof, smp, pos_xy = time_parametrise(
             curve, u_nodes, cfg.dt, v_cap, w_cap, cfg.lateral_accel, a_cap, points=nodes, v_start=v_start
         )
@@ -333,7 +360,7 @@ def plan(
         crect = rects[route.corridor]
         sm = _smooth(route, crect, cfg)
         t_smooth = time.perf_counter()
-        timed = _time_parametrise_inside(sm, crect, robot, cfg, start_speed)
+        timed = _time_parametrise_inside(sm, crect, robot, cfg, start_speed, getattr(areas, "free", None))
     except _NoPlan as no:
         return _fail(no.reason, no.detail, goal, info)
     t_time = time.perf_counter()

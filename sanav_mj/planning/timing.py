@@ -97,7 +97,7 @@ def discrete_geometry(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 
 
 def speed_profile(
-    ds: np.ndarray, kappa: np.ndarray, v_cap: float, w_cap: float, a_lat: float, a_max: float,
+    ds: np.ndarray, kappa: np.ndarray, v_cap: float | np.ndarray, w_cap: float, a_lat: float, a_max: float,
     v_start: float = 0.0,
 ) -> np.ndarray:
     """Speed at each node from rest to rest under speed, yaw-rate, lateral and longitudinal
@@ -106,7 +106,7 @@ def speed_profile(
     Args:
         ds: (N-1,) [m] distances between nodes (> 0).
         kappa: (N,) [1/m] curvature at the nodes.
-        v_cap: [m/s] speed limit.
+        v_cap: [m/s] speed limit, one for all nodes or (N,) one per node.
         w_cap: [rad/s] yaw-rate limit.
         a_lat: [m/s^2] lateral acceleration limit.
         a_max: [m/s^2] longitudinal acceleration / deceleration limit.
@@ -136,7 +136,7 @@ def speed_profile(
 
 
 def profile_curve(
-    u: np.ndarray, points: np.ndarray, v_cap: float, w_cap: float, a_lat: float, a_max: float,
+    u: np.ndarray, points: np.ndarray, v_cap: float | np.ndarray, w_cap: float, a_lat: float, a_max: float,
     v_start: float = 0.0,
 ) -> PathProfile:
     """Geometry, speed and timing on the dense samples of a curve.
@@ -232,7 +232,7 @@ def time_parametrise(
     curve: Callable[[np.ndarray], np.ndarray],
     u_nodes: np.ndarray,
     dt: float,
-    v_cap: float,
+    v_cap: float | np.ndarray,
     w_cap: float,
     a_lat: float,
     a_max: float,

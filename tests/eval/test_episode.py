@@ -177,6 +177,30 @@ def test_planner_config_fractions_are_capped_at_one():
     assert cfg.dt == 0.05
 
 
+def test_planner_config_open_speed_in_discs_mode_only():
+    from dataclasses import replace
+
+    from sanav_mj.control.config import MPCConfig
+    from sanav_mj.control.spec import ControllerSpec
+    from sanav_mj.eval.episode import lidar_spec, planner_config
+
+    robot = _robot()  # the MPC's v_max 1.2 m/s (test above)
+    mpc = MPCConfig(footprint="discs", footprint_open_speed=0.9, footprint_open_room=0.2)
+    cfg = planner_config(robot, ControllerSpec(sa_mpc=mpc))
+    assert cfg.open_speed_fraction * robot.v_max == pytest.approx(0.9 * 1.2, abs=1e-12)
+    assert cfg.open_room == 0.2
+    assert cfg.speed_fraction == planner_config(robot).speed_fraction
+    # the disc mode ignores it; a lidar run drops it (not measured with the lidar)
+    assert planner_config(robot, ControllerSpec(sa_mpc=replace(mpc, footprint="disc"))).open_speed_fraction is None
+    lid = lidar_spec(ControllerSpec(sa_mpc=mpc))
+    assert lid.sa_mpc.footprint_open_speed is None
+    assert planner_config(robot, lid).open_speed_fraction is None
+    with pytest.raises(ValueError, match="footprint_open_speed"):
+        MPCConfig(footprint_open_speed=1.5)
+    with pytest.raises(ValueError, match="footprint_open_room"):
+        MPCConfig(footprint_open_room=-0.1)
+
+
 def test_planned_reference_respects_the_mpc_bounds(u_shape):
     from sanav_mj.control.sa_mpc import MPCConfig
 
@@ -228,9 +252,10 @@ def test_a_discs_mode_document_names_its_footprint_settings_and_a_disc_one_is_un
     assert footprint_fields(footprint_spec()) == {} and footprint_fields(footprint_spec("dwa")) == {}
     discs = footprint_spec("sa-mpc", "discs")
     mine = replace(discs, sa_mpc=replace(discs.sa_mpc, footprint_discs=4, footprint_margin=0.03,
-                                         footprint_refine=1, footprint_grow=0.5, footprint_route="pose"))
+                                         footprint_refine=1, footprint_grow=0.5, footprint_route="pose",
+                                         footprint_open_speed=0.9))
     assert footprint_fields(mine) == {"footprint": {"mode": "discs", "discs": 4, "margin_m": 0.03, "route": "pose",
-                                                    "refine": 1, "grow_m": 0.5}}
+                                                    "refine": 1, "grow_m": 0.5, "open_speed": 0.9}}
     assert "footprint" not in run_scenario("single_rect", seed=0, time_limit_s=0.1).document
     doc = run_scenario("single_rect", seed=0, controller_spec=discs, time_limit_s=0.1).document
     assert doc["reason"] == "timeout"

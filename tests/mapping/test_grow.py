@@ -85,3 +85,41 @@ def test_grown_rectangle_is_free_contains_the_input_and_is_maximal(seed, fill):
     for blocked in ((j0 == 0 or occ[i0:i1, j0 - 1].any()), (j1 == nx or occ[i0:i1, j1].any()),
                     (i0 == 0 or occ[i0 - 1, j0:j1].any()), (i1 == ny or occ[i1, j0:j1].any())):
         assert blocked  # no side can move out by one more cell
+
+
+def test_squares_free_known_answers():
+    occ = np.zeros((6, 8), dtype=bool)
+    occ[2, 5] = True  # the cell x in [0.5, 0.6), y in [0.2, 0.3)
+    cells = FreeCells.of(grid(occ))
+    pts = np.array([[0.25, 0.25],   # 0.1 m square: cells x 1-3, y 1-3, free
+                    [0.35, 0.25],   # x 2-4: free (column 5 not reached: 0.45 is inside column 4)
+                    [0.41, 0.25],   # x up to 0.51: touches column 5, row 2: occupied
+                    [0.05, 0.25],   # x down to -0.05: beyond the grid, not free
+                    [0.65, 0.45]])  # x 0.55-0.75, y 0.35-0.55: rows 3-5, free
+    np.testing.assert_array_equal(cells.squares_free(pts, 0.1), [True, True, False, False, True])
+    np.testing.assert_array_equal(cells.squares_free(pts, 0.0), [True, True, True, True, True])
+    with pytest.raises(ValueError, match="half"):
+        cells.squares_free(pts, -0.1)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), half=st.floats(0.0, 0.35))
+def test_squares_free_matches_the_cells_it_touches(seed, half):
+    rng = np.random.default_rng(seed)
+    occ = rng.random((9, 11)) < 0.08
+    h = 0.1
+    cells = FreeCells.of(grid(occ, h, origin=(-0.3, 0.2)))
+    pts = rng.uniform([-0.5, 0.0], [1.0, 1.3], size=(30, 2))
+    got = cells.squares_free(pts, half)
+    for p, g in zip(pts, got):
+        lo, hi = p - half, p + half
+        # reference: every cell whose open interior meets the closed square, by brute force
+        ok = lo[0] >= -0.3 - 1e-12 and lo[1] >= 0.2 - 1e-12 and hi[0] <= -0.3 + 11 * h + 1e-12 \
+            and hi[1] <= 0.2 + 9 * h + 1e-12
+        for i in range(9):
+            for j in range(11):
+                x0, y0 = -0.3 + j * h, 0.2 + i * h
+                if occ[i, j] and x0 <= hi[0] and x0 + h >= lo[0] and y0 <= hi[1] and y0 + h >= lo[1]:
+                    ok = False
+        if g:  # a True is a proof: no occupied cell touches the square, inside the grid
+            assert ok, (p, half)

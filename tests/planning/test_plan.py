@@ -17,8 +17,8 @@ W_CAP = CFG.yaw_rate_fraction * ROBOT.w_max
 A_CAP = CFG.accel_fraction * ROBOT.a_max
 
 
-def check_reference(p, areas, start_xy, goal_xy):
-    """The properties every successful plan must have."""
+def check_reference(p, areas, start_xy, goal_xy, v_cap=V_CAP):
+    """The properties every successful plan must have (``v_cap`` [m/s]: the top speed)."""
     assert p.ok and p.reason == "ok"
     ref = p.reference
     rects = np.asarray(areas.rects)
@@ -43,9 +43,9 @@ def check_reference(p, areas, start_xy, goal_xy):
     # continuity and limits
     step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
     assert np.all(step <= ROBOT.v_max * dt + 1e-6)
-    assert np.all(step <= V_CAP * dt + 1e-4)  # chord vs. arc length of the dense nodes
+    assert np.all(step <= v_cap * dt + 1e-4)  # chord vs. arc length of the dense nodes
     v, w = ref.inputs[:, 0], ref.inputs[:, 1]
-    assert np.all(v >= 0) and np.all(v <= V_CAP + 1e-9)
+    assert np.all(v >= 0) and np.all(v <= v_cap + 1e-9)
     assert np.all(np.abs(w) <= W_CAP + 1e-9)
     assert np.all(np.abs(np.diff(v)) <= A_CAP * dt + 1e-9)
     assert np.all(np.abs(np.diff(ref.states[:, 2])) < np.pi)  # unwrapped yaw
@@ -277,3 +277,48 @@ def test_properties_on_mapped_clutter(seed):
             assert not p.ok and p.reason == "no_path"
             continue
         check_reference(p, areas, free[a], free[b])
+
+
+def _free_cells(occupied_boxes, bounds=(0.0, 0.0, 10.0, 2.0), h=0.1):
+    """FreeCells of a grid over ``bounds`` with the cells of ``occupied_boxes`` (world boxes) occupied."""
+    from sanav_mj.mapping.grow import FreeCells
+    from sanav_mj.mapping.occupancy import OccupancyGrid
+
+    nx, ny = round((bounds[2] - bounds[0]) / h), round((bounds[3] - bounds[1]) / h)
+    occ = np.zeros((ny, nx), dtype=bool)
+    for x0, y0, x1, y1 in occupied_boxes:
+        occ[round((y0 - bounds[1]) / h):round((y1 - bounds[1]) / h), round((x0 - bounds[0]) / h):round((x1 - bounds[0]) / h)] = True
+    return FreeCells.of(OccupancyGrid(occ, h, np.array(bounds[:2]), 0.0, np.array(bounds)))
+
+
+def test_open_space_speed_is_faster_in_the_open_and_unchanged_where_narrow():
+    import dataclasses
+
+    base = areas_from_rects([[0, 0, 10, 2]])
+    # occupied cells above the path between x = 4 and 6: the square of half-side 0.25 m around
+    # a node at y = 1 touches them from x = 3.75 to 6.25
+    areas = dataclasses.replace(base, free=_free_cells([[4.0, 1.2, 6.0, 1.3]]))
+    cfg = PlannerConfig(open_speed_fraction=1.0, open_room=0.25)
+    fast = plan(areas, [0.5, 1.0, 0.0], [9.5, 1.0], ROBOT, cfg)
+    check_reference(fast, areas, [0.5, 1], [9.5, 1], v_cap=ROBOT.v_max)
+    v, x = fast.reference.inputs[:, 0], fast.reference.states[:, 0]
+    assert v.max() > V_CAP + 0.1 and v.max() <= ROBOT.v_max + 1e-9
+    # samples between nodes lie between the two nodes' speeds: away from the narrow place's
+    # edges (one sample spacing at v_max) the narrow cap holds
+    inside = (x > 3.75 + ROBOT.v_max * CFG.dt) & (x < 6.25 - ROBOT.v_max * CFG.dt)
+    assert inside.any() and v[inside].max() <= V_CAP + 1e-9
+    slow = plan(areas, [0.5, 1.0, 0.0], [9.5, 1.0], ROBOT)
+    assert fast.info["duration_s"] < slow.info["duration_s"]
+    # without the option, or without the grid, the plan is the paper's, exactly
+    ref = plan(base, [0.5, 1.0, 0.0], [9.5, 1.0], ROBOT)
+    for other in (slow, plan(base, [0.5, 1.0, 0.0], [9.5, 1.0], ROBOT, cfg)):
+        np.testing.assert_array_equal(other.reference.states, ref.reference.states)
+        np.testing.assert_array_equal(other.reference.inputs, ref.reference.inputs)
+
+
+@pytest.mark.parametrize("kw, match", [(dict(open_speed_fraction=0.0), "open_speed_fraction"),
+                                       (dict(open_speed_fraction=1.2), "open_speed_fraction"),
+                                       (dict(open_room=-0.1), "open_room")])
+def test_open_space_config_validation(kw, match):
+    with pytest.raises(ValueError, match=match):
+        PlannerConfig(**kw)
