@@ -221,6 +221,7 @@ class TrackingMPC:
         for name, w in zip(("q_x", "q_u", "q_a", "q_n"), (config.q_x, config.q_u, config.q_a, config.q_n)):
             self._p_buf[sl[name]] = np.asarray(w, float)
         self._p_slices = sl
+        self._rolled: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (z, x0, xs) of acceptance()
         self._set_accel(limits.a_max)
 
     # ------------------------------------------------------------ plug-in points
@@ -389,11 +390,16 @@ class TrackingMPC:
             return self._fallback(x0, t0, con.context, "injected", prob)
         if self.config.reach_check and (k := _unreachable(self, x0, con, prob)) is not None:
             return self._fallback(x0, t0, con.context, f"unreachable:stage={k}", prob)
+        self._rolled = None
         res, status, reason = self.solve(prob, x0)
         if status is None:
             return self._fallback(x0, t0, con.context, reason, prob)
         n = self.N
-        xs = rollout_np(x0, res.z.reshape(n, 2), self.dt)
+        rolled = self._rolled
+        if rolled is not None and rolled[0] is res.z and rolled[1] is x0:
+            xs = rolled[2]  # acceptance() rolled out this very solution from this x0
+        else:
+            xs = rollout_np(x0, res.z.reshape(n, 2), self.dt)
         plan = ActivePlan(res.z.reshape(n, 2).copy(), 1, np.asarray(res.y, float), res.y_z)
         return self._accept(plan, xs, x0, t0, status, con.context)
 
@@ -453,6 +459,7 @@ class TrackingMPC:
         if not np.all(np.isfinite(z)):
             return None, f"nonfinite:{res.status}"
         xs = rollout_np(x0, z.reshape(self.N, 2), self.dt)
+        self._rolled = (z, x0, xs)  # the step reuses this rollout when it accepts res
         viol = self.violation(z, xs, prob)
         feasible = viol <= self._check_tol
         if res.converged and feasible:

@@ -465,6 +465,8 @@ class ScanMatcher:
             anchor = np.asarray(anchor, dtype=float).reshape(3)
             lam_a = np.array([anchor_sigma[0] ** -2, anchor_sigma[0] ** -2, anchor_sigma[1] ** -2])
         inv_r2 = 1.0 / c.point_sigma ** 2
+        lam_diag = np.diag(lam)  # the same matrices every iteration: built once
+        lam_a_diag = np.diag(lam_a) if anchor is not None else None
         H_data = np.zeros((3, 3))
         inl = np.zeros(len(s), dtype=bool)
         fast = self.use_kernel and match_kernel.kernel_available()
@@ -482,12 +484,12 @@ class ScanMatcher:
             e = xi - prior
             e[2] = _wrap(e[2])
             g = inv_r2 * (J.T @ res) + lam * e
-            H = H_data + np.diag(lam)
+            H = H_data + lam_diag
             if anchor is not None:
                 ea = xi - anchor
                 ea[2] = _wrap(ea[2])
                 g += lam_a * ea
-                H += np.diag(lam_a)
+                H += lam_a_diag
             step = -np.linalg.solve(H, g)
             xi = xi + step
             if abs(step[0]) + abs(step[1]) < 1e-3 and abs(step[2]) < 5e-4:
