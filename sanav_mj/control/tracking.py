@@ -195,6 +195,17 @@ def _guess_fits(x0: np.ndarray, con: Constraints, prob: Problem, tol: float) -> 
                 and np.all(pos >= con.pos_lb - tol) and np.all(pos <= con.pos_ub + tol))
 
 
+def _rollout_of(ctl, z: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """(N+1, 3) rollout of the solution ``z`` (2N,) from ``x0`` (3,): the one the acceptance
+    test made of this very ``z`` from this ``x0`` (``ctl._rolled``, kept by
+    :meth:`TrackingMPC.acceptance`), else computed. The kept tuple holds its ``z`` alive, so
+    a later solution can never be that same object."""
+    rolled = getattr(ctl, "_rolled", None)
+    if rolled is not None and rolled[0] is z and rolled[1] is x0:
+        return rolled[2]
+    return rollout_np(x0, z.reshape(ctl.N, 2), ctl.dt)
+
+
 def _with_rows(rows: tuple[np.ndarray, np.ndarray], prob: Problem, n_pos: int) -> tuple[np.ndarray, np.ndarray]:
     """``prob``'s constraint bounds with the first ``n_pos`` (the position rows) replaced by ``rows``."""
     return np.concatenate((rows[0], prob.g_lb[n_pos:])), np.concatenate((rows[1], prob.g_ub[n_pos:]))
@@ -243,7 +254,6 @@ class TrackingMPC:
         for name, w in zip(("q_x", "q_u", "q_a", "q_n"), (config.q_x, config.q_u, config.q_a, config.q_n)):
             self._p_buf[sl[name]] = np.asarray(w, float)
         self._p_slices = sl
-        self._rolled: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (z, x0, xs) of acceptance()
         self._set_accel(limits.a_max)
 
     # ------------------------------------------------------------ plug-in points
@@ -412,16 +422,11 @@ class TrackingMPC:
             return self._fallback(x0, t0, con.context, "injected", prob)
         if self.config.reach_check and (k := _unreachable(self, x0, con, prob)) is not None:
             return self._fallback(x0, t0, con.context, f"unreachable:stage={k}", prob)
-        self._rolled = None
         res, status, reason = self.solve(prob, x0)
         if status is None:
             return self._fallback(x0, t0, con.context, reason, prob)
         n = self.N
-        rolled = self._rolled
-        if rolled is not None and rolled[0] is res.z and rolled[1] is x0:
-            xs = rolled[2]  # acceptance() rolled out this very solution from this x0
-        else:
-            xs = rollout_np(x0, res.z.reshape(n, 2), self.dt)
+        xs = _rollout_of(self, res.z, x0)
         plan = ActivePlan(res.z.reshape(n, 2).copy(), 1, np.asarray(res.y, float), res.y_z)
         return self._accept(plan, xs, x0, t0, status, con.context)
 
@@ -480,8 +485,7 @@ class TrackingMPC:
         z = res.z
         if not np.all(np.isfinite(z)):
             return None, f"nonfinite:{res.status}"
-        xs = rollout_np(x0, z.reshape(self.N, 2), self.dt)
-        self._rolled = (z, x0, xs)  # the step reuses this rollout when it accepts res
+        self._rolled = (z, x0, xs := rollout_np(x0, z.reshape(self.N, 2), self.dt))  # see _rollout_of
         viol = self.violation(z, xs, prob)
         feasible = viol <= self._check_tol
         if res.converged and feasible:
