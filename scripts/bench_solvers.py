@@ -345,7 +345,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_scenarios:
         cases.update(builtin_cases())
     for name, (areas, plan, yaw) in cases.items():
-        ctl = SAMPC(ROBOT, areas, plan, base.replace(solver="ipopt", tol=1e-9, constraint_tol=1e-9))
+        ctl = SAMPC(ROBOT, areas, plan, dataclasses.replace(base, solver="ipopt", tol=1e-9, constraint_tol=1e-9))
         n0 = len(problems)
         closed_loop(ctl, plan, yaw, record=problems)
         print(f"recorded {len(problems) - n0} problems on {name}")

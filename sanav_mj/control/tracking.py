@@ -168,9 +168,42 @@ def _unreachable(ctl, x0: np.ndarray, con: Constraints, prob: Problem) -> int | 
     the positions ``p_1..p_N`` (2N rows); else None."""
     if len(con.pos_lb) != 2 * ctl.N:
         return None
+    if _guess_fits(x0, con, prob, 0.5 * ctl._check_tol):
+        return None  # the warm start reaches every box: no stage is unreachable
     k = unreachable_stage(x0, prob.z_lb, prob.z_ub, con.pos_lb, con.pos_ub, ctl.dt, ctl._check_tol)
     ctl.unreachable += k is not None
     return k
+
+
+def _guess_fits(x0: np.ndarray, con: Constraints, prob: Problem, tol: float) -> bool:
+    """Whether the warm start ``prob.u_guess`` (N, 2), rolled out from ``x0`` (3,) as
+    ``prob.guess`` (N+1, 3), is within ``tol`` of the input bounds and of the position boxes
+    (the 2N position rows ``con.pos_lb``/``pos_ub``).
+
+    A shortcut of the reach check, not a change of it: with ``tol`` below the check's own
+    tolerance, such a plan proves every stage box reachable, so
+    :func:`~sanav_mj.control.reach.unreachable_stage` (whose intervals hold every plan within
+    its tolerance of the input bounds, widened boxes, rounding covered by a margin many
+    orders of magnitude below ``tol``) would return None. False when anything is not finite.
+    """
+    guess = prob.guess
+    if not np.array_equal(guess[0], x0):
+        return False
+    z = prob.u_guess.ravel()
+    pos = guess[1:, :2].ravel()
+    return bool(np.all(z >= prob.z_lb - tol) and np.all(z <= prob.z_ub + tol)
+                and np.all(pos >= con.pos_lb - tol) and np.all(pos <= con.pos_ub + tol))
+
+
+def _rollout_of(ctl, z: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """(N+1, 3) rollout of the solution ``z`` (2N,) from ``x0`` (3,): the one the acceptance
+    test made of this very ``z`` from this ``x0`` (``ctl._rolled``, kept by
+    :meth:`TrackingMPC.acceptance`), else computed. The kept tuple holds its ``z`` alive, so
+    a later solution can never be that same object."""
+    rolled = getattr(ctl, "_rolled", None)
+    if rolled is not None and rolled[0] is z and rolled[1] is x0:
+        return rolled[2]
+    return rollout_np(x0, z.reshape(ctl.N, 2), ctl.dt)
 
 
 def _with_rows(rows: tuple[np.ndarray, np.ndarray], prob: Problem, n_pos: int) -> tuple[np.ndarray, np.ndarray]:
@@ -393,7 +426,7 @@ class TrackingMPC:
         if status is None:
             return self._fallback(x0, t0, con.context, reason, prob)
         n = self.N
-        xs = rollout_np(x0, res.z.reshape(n, 2), self.dt)
+        xs = _rollout_of(self, res.z, x0)
         plan = ActivePlan(res.z.reshape(n, 2).copy(), 1, np.asarray(res.y, float), res.y_z)
         return self._accept(plan, xs, x0, t0, status, con.context)
 
@@ -452,7 +485,7 @@ class TrackingMPC:
         z = res.z
         if not np.all(np.isfinite(z)):
             return None, f"nonfinite:{res.status}"
-        xs = rollout_np(x0, z.reshape(self.N, 2), self.dt)
+        self._rolled = (z, x0, xs := rollout_np(x0, z.reshape(self.N, 2), self.dt))  # see _rollout_of
         viol = self.violation(z, xs, prob)
         feasible = viol <= self._check_tol
         if res.converged and feasible:

@@ -369,15 +369,29 @@ class ScanMatcher:
         Returns:
             The cost [dimensionless, a chi-square-like sum].
         """
+        return self.costs((pose,), points, normals)[0]
+
+    def costs(self, poses, points, normals) -> list[float]:
+        """:meth:`cost` of one scan at each of several poses (K, 3), with one correspondence
+        search for all of them; each value equal to :meth:`cost` at that pose, bit for bit
+        (the same arithmetic per pose, each pose's sum over its own points)."""
         c = self.config
         s = np.asarray(points, dtype=float).reshape(-1, 2)
         n = np.asarray(normals, dtype=float).reshape(-1, 2)
-        cth, sth = math.cos(pose[2]), math.sin(pose[2])
-        pw = np.stack([cth * s[:, 0] - sth * s[:, 1] + pose[0], sth * s[:, 0] + cth * s[:, 1] + pose[1]], axis=1)
+        if not len(poses):
+            return []
+        cs = [(math.cos(pose[2]), math.sin(pose[2])) for pose in poses]
+        pw = np.concatenate([np.stack([cth * s[:, 0] - sth * s[:, 1] + pose[0], sth * s[:, 0] + cth * s[:, 1] + pose[1]],
+                                      axis=1) for pose, (cth, sth) in zip(poses, cs)])
         q, d2 = self.field.correspond(pw, self.use_kernel)
-        r = (cth * n[:, 0] - sth * n[:, 1]) * (pw[:, 0] - q[:, 0]) + (sth * n[:, 0] + cth * n[:, 1]) * (pw[:, 1] - q[:, 1])
-        r2 = np.where(d2 <= c.max_pair_m ** 2, np.minimum(r * r, c.max_pair_m ** 2), c.max_pair_m ** 2)
-        return float(r2.sum() / c.point_sigma ** 2)
+        out = []
+        m = len(s)
+        for k, (cth, sth) in enumerate(cs):
+            pk, qk, dk = pw[k * m:(k + 1) * m], q[k * m:(k + 1) * m], d2[k * m:(k + 1) * m]
+            r = (cth * n[:, 0] - sth * n[:, 1]) * (pk[:, 0] - qk[:, 0]) + (sth * n[:, 0] + cth * n[:, 1]) * (pk[:, 1] - qk[:, 1])
+            r2 = np.where(dk <= c.max_pair_m ** 2, np.minimum(r * r, c.max_pair_m ** 2), c.max_pair_m ** 2)
+            out.append(float(r2.sum() / c.point_sigma ** 2))
+        return out
 
     def match(self, prior, points, normals, anchor=None, anchor_sigma=(math.inf, math.inf), check=None
               ) -> MatchResult:
@@ -415,7 +429,8 @@ class ScanMatcher:
         if check is not None:
             chk = np.asarray(check, dtype=float).reshape(3)
             if math.isfinite(chk[0]) and math.isfinite(chk[1]) and math.isfinite(chk[2]):
-                delta = self.cost(chk, s, normals) - self.cost(xi, s, normals)
+                c_chk, c_xi = self.costs((chk, xi), s, normals)
+                delta = c_chk - c_xi
         return MatchResult(xi, status == "ok", status, inliers, len(s), eig, corr, rms, delta)
 
     def _search(self, prior: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -465,6 +480,8 @@ class ScanMatcher:
             anchor = np.asarray(anchor, dtype=float).reshape(3)
             lam_a = np.array([anchor_sigma[0] ** -2, anchor_sigma[0] ** -2, anchor_sigma[1] ** -2])
         inv_r2 = 1.0 / c.point_sigma ** 2
+        lam_diag = np.diag(lam)  # the same matrices every iteration: built once
+        lam_a_diag = np.diag(lam_a) if anchor is not None else None
         H_data = np.zeros((3, 3))
         inl = np.zeros(len(s), dtype=bool)
         fast = self.use_kernel and match_kernel.kernel_available()
@@ -482,12 +499,12 @@ class ScanMatcher:
             e = xi - prior
             e[2] = _wrap(e[2])
             g = inv_r2 * (J.T @ res) + lam * e
-            H = H_data + np.diag(lam)
+            H = H_data + lam_diag
             if anchor is not None:
                 ea = xi - anchor
                 ea[2] = _wrap(ea[2])
                 g += lam_a * ea
-                H += np.diag(lam_a)
+                H += lam_a_diag
             step = -np.linalg.solve(H, g)
             xi = xi + step
             if abs(step[0]) + abs(step[1]) < 1e-3 and abs(step[2]) < 5e-4:

@@ -111,6 +111,36 @@ def test_cost_is_lowest_at_the_true_pose():
     assert res.check_delta <= 11.34  # the true pose passes the consistency test
 
 
+def _cost_reference(m, pose, s, n):
+    """The truncated point-to-line cost of one pose, written out (the single-pose version)."""
+    c = m.config
+    cth, sth = math.cos(pose[2]), math.sin(pose[2])
+    pw = np.stack([cth * s[:, 0] - sth * s[:, 1] + pose[0], sth * s[:, 0] + cth * s[:, 1] + pose[1]], axis=1)
+    q, d2 = m.field.correspond(pw, use_kernel=False)
+    r = (cth * n[:, 0] - sth * n[:, 1]) * (pw[:, 0] - q[:, 0]) + (sth * n[:, 0] + cth * n[:, 1]) * (pw[:, 1] - q[:, 1])
+    r2 = np.where(d2 <= c.max_pair_m ** 2, np.minimum(r * r, c.max_pair_m ** 2), c.max_pair_m ** 2)
+    return float(r2.sum() / c.point_sigma ** 2)
+
+
+@pytest.mark.parametrize("use_kernel", [True, False])
+def test_costs_of_several_poses_equal_the_single_pose_cost_bit_for_bit(use_kernel):
+    """Fast vs reference: one correspondence search for several poses (the match's
+    consistency test) gives each pose's cost exactly as computed alone."""
+    box = [0.0, 0.0, 6.0, 4.0]
+    f = _field(box, (2.0, 1.5, 0.3), [-0.5, -0.5, 6.5, 4.5])
+    m = ScanMatcher(f, use_kernel=use_kernel)
+    r, hit = room_scan((2.0, 1.5, 0.3), ANGLES, box, 10.0)
+    pts, normals = scan_points(r, hit, ANGLES)
+    rng = np.random.default_rng(3)
+    poses = [np.array([2.0, 1.5, 0.3])] + [np.array([2.0, 1.5, 0.3]) + rng.normal(0, [0.1, 0.1, 0.05])
+                                           for _ in range(5)] + [np.array([9.0, 9.0, 1.0])]  # off the map
+    got = m.costs(poses, pts, normals)
+    want = [_cost_reference(m, p, pts, normals) for p in poses]
+    assert got == want
+    assert [m.cost(p, pts, normals) for p in poses] == want
+    assert m.costs([], pts, normals) == []
+
+
 def test_scan_points_drop_returns_without_a_surface():
     """Returns at a depth jump (an edge) or without both neighbours get no normal; on a flat
     wall the normal is the wall's."""
