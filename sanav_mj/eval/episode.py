@@ -526,9 +526,9 @@ def lidar_spec(cspec: ControllerSpec) -> ControllerSpec:
     mpc = cspec.sa_mpc
     pred = mpc.footprint_prediction
     tight = pred is not None and pred.tighten
-    if mpc.footprint != "discs" or (mpc.footprint_refine == 1 and mpc.footprint_grow == 0 and not tight):
+    if mpc.footprint != "discs" or (mpc.footprint_refine == 1 and not tight):
         return cspec
-    return replace(cspec, sa_mpc=replace(mpc, footprint_refine=1, footprint_grow=0.0,
+    return replace(cspec, sa_mpc=replace(mpc, footprint_refine=1,
                                          footprint_prediction=replace(pred, tighten=False) if tight else pred))
 
 
@@ -575,10 +575,9 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
 
     cspec = lidar_spec(cspec)
     mpc = cspec.sa_mpc
-    if mpc.footprint == "discs" and (mpc.footprint_grow > 0 or mpc.footprint_route != "corridor"):
-        raise ValueError(f"sensing lidar with MPCConfig.footprint='discs': expected footprint_grow=0 and "
-                         f"footprint_route='corridor', got footprint_grow={mpc.footprint_grow!r}, "
-                         f"footprint_route={mpc.footprint_route!r}")
+    if mpc.footprint == "discs" and mpc.footprint_route != "corridor":
+        raise ValueError(f"sensing lidar with MPCConfig.footprint='discs': expected footprint_route='corridor', "
+                         f"got footprint_route={mpc.footprint_route!r}")
     lcfg = lidar_config(scenario.model)
     inflation = map_inflation(scenario, cspec)
     narrow = sensed_narrow_width(scenario.robot.footprint_radius + DEFAULT_MARGIN_M - inflation, resolution) \
@@ -588,7 +587,8 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
                         spec.sa_mpc, planner_config(scenario.robot, spec),
                         SensingConfig(map=SensedMapConfig(resolution=resolution),
                                       footprint=robot_footprint(scenario.model), narrow_width=narrow,
-                                      refresh=mpc.footprint == "discs", straight_brake=mpc.footprint == "discs"))
+                                      refresh=mpc.footprint == "discs", straight_brake=mpc.footprint == "discs",
+                                      grow=mpc.footprint_grow if mpc.footprint == "discs" else 0.0))
 
 
 def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, resolution: float,

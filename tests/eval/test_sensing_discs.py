@@ -127,7 +127,9 @@ def test_discs_lidar_run_keeps_every_disc_centre_in_observed_free_space():
     assert len(checked) > 50  # the per-disc check ran on the solved steps
     assert first_plan == [True]
     assert doc["sensing"] == "lidar" and doc["footprint"]["mode"] == "discs"
-    assert doc["footprint"]["refine"] == 1 and doc["footprint"]["grow_m"] == 0.0  # the sensed map is one grid
+    # the sensed map is one grid; the chain grows into its safe cells (the discs default 1 m)
+    assert doc["footprint"]["refine"] == 1 and doc["footprint"]["grow_m"] == DISCS.sa_mpc.footprint_grow == 1.0
+    assert ctrl.config.grow == 1.0
     assert ctrl.map.grid.inflation == pytest.approx(
         robot_footprint(load_scenario("u_shape").model).discs(3)[1] + DISCS.sa_mpc.footprint_margin)
 
@@ -137,18 +139,75 @@ def test_discs_lidar_refuses_or_drops_known_map_only_settings():
 
     sc = load_scenario("single_rect")
     spec = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_route="pose"))
-    with pytest.raises(ValueError, match="footprint_grow=0 and footprint_route='corridor'"):
+    with pytest.raises(ValueError, match="footprint_route='corridor'"):
         lidar_controller(sc, spec)
-    # refinement and grown chains are settings of a fixed grid: a lidar run drops them (its
-    # document says so), whatever the discs defaults are
-    grown = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_grow=1.0, footprint_refine=2))
+    # refinement is a setting of a fixed grid: a lidar run drops it (its document says so),
+    # whatever the discs defaults are; the chain's growth is kept (into the sensed safe cells)
+    grown = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_grow=0.5, footprint_refine=2))
     used = lidar_spec(grown).sa_mpc
-    assert (used.footprint_grow, used.footprint_refine) == (0.0, 1)
+    assert (used.footprint_grow, used.footprint_refine) == (0.5, 1)
+    assert lidar_controller(sc, grown).config.grow == 0.5
+    assert lidar_controller(sc, footprint_spec()).config.grow == 0.0  # disc mode: no growth
     # the tightening's bound assumes the measured state is the true one: off with the localiser
     assert grown.sa_mpc.footprint_prediction.tighten and not used.footprint_prediction.tighten
-    assert used == replace(grown.sa_mpc, footprint_grow=0.0, footprint_refine=1,
+    assert used == replace(grown.sa_mpc, footprint_refine=1,
                            footprint_prediction=replace(grown.sa_mpc.footprint_prediction, tighten=False))
     assert lidar_spec(footprint_spec()) == footprint_spec()
+
+
+def _first_plan(grow: float):
+    """A discs-mode lidar controller with ``footprint_grow`` = ``grow`` [m] after its first
+    step at the origin with a full-circle scan of 3 m and no return."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from sanav_mj.control.base import Observation
+
+    spec = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_grow=grow))
+    ctrl = lidar_controller(load_scenario("single_rect"), spec)
+    ctrl.reset(np.zeros(3))
+    a = np.linspace(-math.pi, math.pi, 720, endpoint=False)
+    scan = SimpleNamespace(ranges=np.full(720, 3.0), hit=np.zeros(720, bool), angles=a)
+    ctrl.step(Observation(t=0.0, pose=np.zeros(3), velocity=np.zeros(2), scan=scan))
+    assert ctrl.mpc is not None and ctrl.records[0].replan == "initial"
+    return ctrl
+
+
+def _contains(outer, inner):
+    return bool(np.all(outer[:2] <= inner[:2] + 1e-12) and np.all(outer[2:] >= inner[2:] - 1e-12))
+
+
+def test_discs_lidar_grows_the_chain_into_safe_cells_and_replans_when_a_grown_box_is_hit():
+    """The corridor chain's boxes grow to maximal rectangles of the sensed *safe* cells (the
+    quadtree's staircase of areas around a disc of seen free space leaves room beside each
+    rectangle); each grown box holds its plain member, only safe cells, and is checked at
+    every scan: a return inside a grown box, outside every corridor rectangle, replans
+    (``blocked``). Without growth the chain is the corridor's rectangles and bridges."""
+    plain = _first_plan(0.0)
+    assert len(plain.records[0].corridor_rects) == len(plain._plain_rects)
+    ctrl = _first_plan(1.0)
+    corridor, boxes = ctrl._plain_rects, np.asarray(ctrl.mpc.chain.boxes)
+    np.testing.assert_array_equal(corridor, plain._plain_rects)  # the same corridor
+    assert len(boxes) == 2 * len(corridor) - 1
+    for k, r in enumerate(corridor):
+        assert _contains(boxes[2 * k], r)
+    assert any(not np.array_equal(b, p) for b, p in zip(boxes, np.asarray(plain.mpc.chain.boxes)))
+    assert ctrl.map.rects_still_safe(boxes).all()
+    np.testing.assert_array_equal(ctrl.records[0].corridor_rects, np.vstack([corridor, boxes]))
+    # a return at (0.12, 0.9): inside the first grown box, farther than the inflation from
+    # every corridor rectangle (the first ends at y = 0.2, the others start at x = 2.2)
+    hit = np.array([0.12, 0.9])
+    assert any(_contains(b, np.r_[hit, hit]) for b in boxes)
+    assert not any(_contains(r, np.r_[hit, hit]) for r in corridor)
+    pose = ctrl.estimate.copy()
+    origin = pose[:2] + 0.12 * np.array([math.cos(pose[2]), math.sin(pose[2])])
+    d = hit - origin
+    up = ctrl.map.integrate(pose, np.array([np.hypot(*d)]), np.array([True]),
+                            np.array([math.atan2(d[1], d[0]) - pose[2]]))
+    assert up.changed
+    assert ctrl.map.rects_still_safe(corridor).all()
+    assert ctrl._replan_reason(True, pose) == "blocked"
+    assert plain._replan_reason(False, plain.estimate) != "blocked"
 
 
 def test_lidar_run_from_a_refined_prepared_map_uses_the_base_cells():
