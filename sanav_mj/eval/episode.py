@@ -507,13 +507,14 @@ def _chain(first, second):
 
 
 def lidar_spec(cspec: ControllerSpec) -> ControllerSpec:
-    """``cspec`` as a lidar run uses it: in ``"discs"`` mode with ``footprint_refine`` 1,
-    ``footprint_grow`` 0 and the prediction monitor's box tightening off; ``cspec`` itself
-    otherwise.
+    """``cspec`` as a lidar run uses it: in ``"discs"`` mode with the prediction monitor's box
+    tightening off; ``cspec`` itself otherwise.
 
-    The sensed map is one grid of the run's resolution: the known map's local refinement and
-    the growth of the chain's boxes to maximal free rectangles of a fixed grid are not
-    applied to it (the run document says refine 1 and grow 0). The tightening shrinks the
+    ``footprint_refine`` and ``footprint_grow`` are kept, with the sensed map's meaning
+    (:func:`lidar_controller`): the sensed grid's cells are ``resolution / footprint_refine``
+    everywhere (:func:`lidar_cell`; the live grid is one grid, the known map refines only
+    where the free space is narrow), and the corridor chain's boxes grow into the sensed
+    *safe* cells (``SensingConfig.grow``). The tightening shrinks the
     stage boxes by the measured one-step prediction error, whose bound assumes the measured
     state is the true one; with the lidar the measured state is the localiser's, and its
     scan-match corrections enter that error: with it on, 2 of the 25 paper-scenario runs
@@ -526,10 +527,16 @@ def lidar_spec(cspec: ControllerSpec) -> ControllerSpec:
     mpc = cspec.sa_mpc
     pred = mpc.footprint_prediction
     tight = pred is not None and pred.tighten
-    if mpc.footprint != "discs" or (mpc.footprint_refine == 1 and not tight):
+    if mpc.footprint != "discs" or not tight:
         return cspec
-    return replace(cspec, sa_mpc=replace(mpc, footprint_refine=1,
-                                         footprint_prediction=replace(pred, tighten=False) if tight else pred))
+    return replace(cspec, sa_mpc=replace(mpc, footprint_prediction=replace(pred, tighten=False)))
+
+
+def lidar_cell(resolution: float, cspec: ControllerSpec) -> float:
+    """[m] the sensed grid's cell edge of a lidar run with base cells of ``resolution`` [m]:
+    ``resolution / footprint_refine`` in ``"discs"`` mode, ``resolution`` otherwise."""
+    mpc = cspec.sa_mpc
+    return resolution / mpc.footprint_refine if mpc.footprint == "discs" else resolution
 
 
 def sensed_narrow_width(lost: float, resolution: float) -> float:
@@ -557,12 +564,13 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
     the known-map mode's inflation (:func:`map_inflation`: circumscribed radius +
     :data:`DEFAULT_MARGIN_M`, or in ``"discs"`` mode the disc cover's radius +
     ``footprint_margin``), the lidar offset of the robot file, the planner matched to the MPC,
-    one grid of ``resolution`` [m] cells (the known map's local refinement,
-    ``footprint_refine``, is not applied to the sensed map) and, in ``"discs"`` mode, the
-    known map's narrow-passage penalty of the corridor search (:func:`planning_areas`).
+    one grid of :func:`lidar_cell` cells (``resolution`` [m], divided by ``footprint_refine``
+    in ``"discs"`` mode) and, in ``"discs"`` mode, the known map's narrow-passage penalty of
+    the corridor search (:func:`planning_areas`, counted in those cells) and the chain's
+    growth into the sensed safe cells (``SensingConfig.grow`` = ``footprint_grow``).
 
-    ``cspec`` is first taken as :func:`lidar_spec` gives it (no refinement, no grown chains,
-    no box tightening in ``"discs"`` mode).
+    ``cspec`` is first taken as :func:`lidar_spec` gives it (no box tightening in
+    ``"discs"`` mode).
 
     Raises:
         ValueError: ``"discs"`` with ``footprint_route="pose"`` (a known-map setting: the pose
@@ -575,6 +583,7 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
 
     cspec = lidar_spec(cspec)
     mpc = cspec.sa_mpc
+    resolution = lidar_cell(resolution, cspec)
     if mpc.footprint == "discs" and mpc.footprint_route != "corridor":
         raise ValueError(f"sensing lidar with MPCConfig.footprint='discs': expected footprint_route='corridor', "
                          f"got footprint_route={mpc.footprint_route!r}")
@@ -604,8 +613,8 @@ def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, reso
     from sanav_mj.sim.runner import run_episode
 
     if isinstance(source, Prepared):
-        # the sensed map is one grid: a Prepared of a refined discs map has cells of
-        # resolution / footprint_refine (map_config), the base cells are the lidar map's
+        # a Prepared of a refined discs map has cells of resolution / footprint_refine
+        # (map_config): its base cells, divided again by lidar_controller (lidar_cell)
         mpc = cspec.sa_mpc
         refine = mpc.footprint_refine if mpc.footprint == "discs" and mpc.footprint_refine > 1 else 1
         scenario, resolution = source.scenario, source.grid.resolution * refine

@@ -15,8 +15,8 @@ import math
 import numpy as np
 import pytest
 
-from sanav_mj.eval.episode import (DEFAULT_MARGIN_M, footprint_spec, lidar_controller, lidar_spec, prepare,
-                                   run_scenario)
+from sanav_mj.eval.episode import (DEFAULT_MARGIN_M, footprint_spec, lidar_cell, lidar_controller, lidar_spec,
+                                   prepare, run_scenario)
 from sanav_mj.footprint import robot_footprint
 from sanav_mj.scene import load_scenario
 
@@ -84,7 +84,11 @@ def _discs_checked_run(scenario: str, seed: int):
         return con
 
     mpc.constrain = constrain
-    truth = prepare(sc, controller=lidar_spec(DISCS)).grid
+    # the true grid of the sensed map's cells (0.05 / footprint_refine m), one grid as the sensed one
+    from dataclasses import replace
+
+    one = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_refine=1))
+    truth = prepare(sc, resolution=ctrl.map.grid.resolution, controller=lidar_spec(one)).grid
     assert truth.resolution == ctrl.map.grid.resolution
     assert truth.inflation == pytest.approx(ctrl.map.grid.inflation, abs=1e-12)
     checked, first_plan = [], []
@@ -127,9 +131,11 @@ def test_discs_lidar_run_keeps_every_disc_centre_in_observed_free_space():
     assert len(checked) > 50  # the per-disc check ran on the solved steps
     assert first_plan == [True]
     assert doc["sensing"] == "lidar" and doc["footprint"]["mode"] == "discs"
-    # the sensed map is one grid; the chain grows into its safe cells (the discs default 1 m)
-    assert doc["footprint"]["refine"] == 1 and doc["footprint"]["grow_m"] == DISCS.sa_mpc.footprint_grow == 1.0
-    assert ctrl.config.grow == 1.0
+    # the sensed map is one grid of 0.05 / footprint_refine m cells; the chain grows into its
+    # safe cells (the discs defaults: refine 2, grow 1 m)
+    assert doc["footprint"]["refine"] == DISCS.sa_mpc.footprint_refine == 2
+    assert doc["footprint"]["grow_m"] == DISCS.sa_mpc.footprint_grow == 1.0
+    assert ctrl.config.grow == 1.0 and ctrl.map.grid.resolution == 0.025
     assert ctrl.map.grid.inflation == pytest.approx(
         robot_footprint(load_scenario("u_shape").model).discs(3)[1] + DISCS.sa_mpc.footprint_margin)
 
@@ -141,29 +147,32 @@ def test_discs_lidar_refuses_or_drops_known_map_only_settings():
     spec = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_route="pose"))
     with pytest.raises(ValueError, match="footprint_route='corridor'"):
         lidar_controller(sc, spec)
-    # refinement is a setting of a fixed grid: a lidar run drops it (its document says so),
-    # whatever the discs defaults are; the chain's growth is kept (into the sensed safe cells)
-    grown = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_grow=0.5, footprint_refine=2))
+    # refinement and growth keep their sensed-map meaning: cells of 0.05 / refine m everywhere,
+    # the chain grown into the sensed safe cells; the disc mode has neither
+    grown = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_grow=0.5, footprint_refine=4))
     used = lidar_spec(grown).sa_mpc
-    assert (used.footprint_grow, used.footprint_refine) == (0.5, 1)
-    assert lidar_controller(sc, grown).config.grow == 0.5
-    assert lidar_controller(sc, footprint_spec()).config.grow == 0.0  # disc mode: no growth
+    assert (used.footprint_grow, used.footprint_refine) == (0.5, 4)
+    ctrl = lidar_controller(sc, grown)
+    assert ctrl.config.grow == 0.5 and ctrl.map.grid.resolution == 0.0125
+    disc = lidar_controller(sc, footprint_spec())
+    assert disc.config.grow == 0.0 and disc.map.grid.resolution == 0.05
+    assert lidar_cell(0.05, grown) == 0.0125 and lidar_cell(0.05, footprint_spec()) == 0.05
     # the tightening's bound assumes the measured state is the true one: off with the localiser
     assert grown.sa_mpc.footprint_prediction.tighten and not used.footprint_prediction.tighten
-    assert used == replace(grown.sa_mpc, footprint_refine=1,
+    assert used == replace(grown.sa_mpc,
                            footprint_prediction=replace(grown.sa_mpc.footprint_prediction, tighten=False))
     assert lidar_spec(footprint_spec()) == footprint_spec()
 
 
 def _first_plan(grow: float):
-    """A discs-mode lidar controller with ``footprint_grow`` = ``grow`` [m] after its first
+    """A discs-mode lidar controller (0.05 m cells) with ``footprint_grow`` = ``grow`` [m] after its first
     step at the origin with a full-circle scan of 3 m and no return."""
     from dataclasses import replace
     from types import SimpleNamespace
 
     from sanav_mj.control.base import Observation
 
-    spec = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_grow=grow))
+    spec = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_grow=grow, footprint_refine=1))  # 0.05 m cells
     ctrl = lidar_controller(load_scenario("single_rect"), spec)
     ctrl.reset(np.zeros(3))
     a = np.linspace(-math.pi, math.pi, 720, endpoint=False)
@@ -214,7 +223,7 @@ def test_lidar_run_from_a_refined_prepared_map_uses_the_base_cells():
     prep = prepare("single_rect", controller=DISCS)  # refined: 0.025 m cells where narrow
     assert prep.grid.resolution == pytest.approx(0.025)
     out = run_scenario(prep, seed=0, sensing="lidar", controller_spec=DISCS, time_limit_s=0.3)
-    assert out.sensed.map.grid.resolution == 0.05
+    assert out.sensed.map.grid.resolution == 0.025  # the base 0.05 m cells, refined by 2 everywhere
 
 
 def test_discs_mode_counts_the_robot_in_safe_space_only_when_every_disc_centre_is():
@@ -278,7 +287,7 @@ def test_discs_lidar_controller_narrow_width():
     from sanav_mj.eval.episode import sensed_narrow_width
 
     # at margin 0.05 m: 0.330 + 0.05 - (0.2305 + 0.05) = 0.0985 m lost, strips of up to 4 cells narrow
-    m05 = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_margin=0.05))
+    m05 = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_margin=0.05, footprint_refine=1))  # 0.05 m cells
     ctrl = lidar_controller(sc, m05)
     lost = sc.robot.footprint_radius + DEFAULT_MARGIN_M - ctrl.map.grid.inflation
     assert 0.0975 < lost < 0.1
@@ -286,7 +295,8 @@ def test_discs_lidar_controller_narrow_width():
     # the default's margin gives the width of its own lost inflation
     ctrl = lidar_controller(sc, DISCS)
     lost = sc.robot.footprint_radius + DEFAULT_MARGIN_M - ctrl.map.grid.inflation
-    assert ctrl.config.narrow_width == sensed_narrow_width(lost, 0.05) == ctrl.body.narrow_width
+    assert ctrl.map.grid.resolution == 0.025  # counted in the sensed cells: 0.05 / footprint_refine
+    assert ctrl.config.narrow_width == sensed_narrow_width(lost, 0.025) == ctrl.body.narrow_width
     assert lidar_controller(sc).config.narrow_width == 0.0
 
 
