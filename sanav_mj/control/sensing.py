@@ -269,6 +269,15 @@ class SensingConfig:
             raise ValueError(f"SensingConfig.background_replan: expected True or False, got {self.background_replan!r}")
 
 
+def _growing(areas: SafeAreas, sensed: SensedMap, grow: float, tighten: float) -> SafeAreas:
+    """``areas`` carrying the :class:`~sanav_mj.mapping.grow.FreeCells` of the cells safe in
+    ``sensed`` now (growth limit ``grow`` [m], ``tighten`` [m]), so SA-MPC's corridor chain
+    grows its boxes into them (``SensingConfig.grow``); ``areas`` itself when ``grow`` is 0."""
+    if grow <= 0:
+        return areas
+    return replace(areas, free=FreeCells.of(sensed.grid.safe_grid(), grow, tighten))
+
+
 @dataclass(frozen=True)
 class StepRecord:
     """What the sensing loop did at one control step.
@@ -457,7 +466,7 @@ class SensingSAMPC:
         self._have_route = False  # route areas exist (after the first scan, when kept)
         self._route_dirty = True  # route or route grid changed since the route was last found clear
         self._corridor_rects = np.zeros((0, 4))
-        self._plain_rects = self._corridor_rects  # the corridor's own rectangles (without grown boxes)
+        self._plain_rects = self._corridor_rects  # the corridor's rectangles (without grown boxes)
         self.route: np.ndarray | None = None
         self.local_goal: np.ndarray | None = None
         self.records: list[StepRecord] = []
@@ -732,10 +741,7 @@ class SensingSAMPC:
         return route[stop - 1].copy()
 
     def _follow(self, plan: Plan, pose: np.ndarray, areas: SafeAreas, boxes: np.ndarray) -> None:
-        if self.config.grow > 0:
-            # the chain grows into cells safe in the current map (the map the plan is adopted on)
-            areas = replace(areas, free=FreeCells.of(self.map.grid.safe_grid(), self.config.grow,
-                                                    self.mpc_config.footprint_grow_tighten))
+        areas = _growing(areas, self.map, self.config.grow, self.mpc_config.footprint_grow_tighten)
         u_prev = np.array([0.0, self._turn_w])
         if self.mpc is None and self._spare is None:
             self.mpc = self._mpc_class(self.robot, areas, plan, self.mpc_config, footprint=self.body.mpc_footprint)
@@ -750,12 +756,10 @@ class SensingSAMPC:
         else:
             self.mpc.replace_plan(areas, plan)
         self._mpc_fresh = False
-        self._corridor_rects = np.asarray(areas.rects, dtype=float)[np.asarray(plan.corridor, int)]
-        self._plain_rects = self._corridor_rects
-        if self.config.grow > 0:
-            # the grown chain members (each holds its corridor rectangle or bridge): checked
-            # at every scan with the corridor rectangles (``blocked``)
-            self._corridor_rects = np.vstack([self._corridor_rects, np.asarray(self.mpc.chain.boxes, dtype=float)])
+        self._plain_rects = np.asarray(areas.rects, dtype=float)[np.asarray(plan.corridor, int)]
+        # with growth, the grown chain members too: checked at every scan (``blocked``)
+        self._corridor_rects = self._plain_rects if areas.free is None else \
+            np.vstack([self._plain_rects, np.asarray(self.mpc.chain.boxes, dtype=float)])
         self.plan_boxes = boxes
 
     def _scan_turn(self, obs: Observation) -> Command:
