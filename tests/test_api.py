@@ -154,7 +154,7 @@ def test_lidar_run_document_is_the_cli_json(tmp_path):
 def test_lidar_run_with_the_discs_footprint():
     """``sensing="lidar"`` with a discs-mode ControllerSpec: the sensed map is inflated by the
     disc cover's radius + footprint_margin and the document names the footprint settings (one
-    grid: refine 1, no grown chains); known-map-only discs settings are refused."""
+    grid of 0.05 / refine m cells, the chain grown by grow_m); the pose route is refused."""
     from dataclasses import replace
 
     from sanav_mj.control.config import MPCConfig
@@ -164,10 +164,14 @@ def test_lidar_run_with_the_discs_footprint():
     res = sanav_mj.run_scenario("single_rect", controller=spec, seed=1, sensing="lidar")
     doc = res.to_dict()
     assert doc["success"] and doc["collisions"] == 0 and doc["sensing"] == "lidar"
-    assert doc["footprint"] == {"mode": "discs", "discs": 3, "margin_m": 0.05, "route": "corridor", "refine": 1,
-                                "grow_m": 0.0, "open_speed": None}
+    mpc = spec.sa_mpc
+    assert doc["footprint"] == {"mode": "discs", "discs": 3, "margin_m": 0.05, "route": "corridor",
+                                "refine": mpc.footprint_refine, "grow_m": mpc.footprint_grow, "open_speed": None}
     fp = sanav_mj.footprint.robot_footprint(res.prepared.scenario.model)
     assert res.sensed.map.grid.inflation == fp.discs(3)[1] + 0.05
+    # one grid of 0.05 / footprint_refine m cells, the chain grown into its safe cells
+    assert res.sensed.map.grid.resolution == 0.05 / mpc.footprint_refine
+    assert res.sensed.config.grow == mpc.footprint_grow
     with pytest.raises(ValueError, match="footprint_route"):
         sanav_mj.run_scenario("single_rect", controller=replace(spec, sa_mpc=replace(spec.sa_mpc, footprint_route="pose")),
                               sensing="lidar")

@@ -70,6 +70,7 @@ from sanav_mj.control.replan import kept_prefix, prefixed_areas
 from sanav_mj.control.sa_mpc import SAMPC
 from sanav_mj.control.sensed_footprint import SensedFootprint, StraightBrakeSAMPC
 from sanav_mj.footprint import Footprint
+from sanav_mj.mapping.grow import FreeCells
 from sanav_mj.mapping.safe_areas import SafeAreas
 from sanav_mj.mapping.sensed_map import SensedMap, SensedMapConfig, SensedUpdate
 from sanav_mj.planning import PlannerConfig
@@ -184,6 +185,17 @@ class SensingConfig:
             world the changed path left a box corner unseen, so one safe cell of the sensed
             map lay 1.6 cm inside the true inflated obstacle (a limit of the map, see
             docs/sensing.md, not of the route).
+        grow: [m] > 0: every box of the SA-MPC's corridor chain is grown to a maximal
+            rectangle of cells *safe in the map the plan is adopted on*, at most this far per
+            side (the known map's ``MPCConfig.footprint_grow``, applied to the sensed safe
+            grid: :class:`~sanav_mj.mapping.grow.FreeCells` of :meth:`LiveGrid.safe_grid`,
+            tightened by ``MPCConfig.footprint_grow_tighten``).
+            The grown boxes join the corridor rectangles of the ``blocked`` check, so every
+            box the MPC uses in a step is observed-safe in that step's map. The incremental
+            safe areas cut the sensed free space into staircases of one-cell slivers; a disc
+            centre's stage boxes in them stalled the robot (e.g. barn_0007: three boxes
+            0.05 m high at the top edge, the solver failing at rest). 0 (default): the
+            chain's boxes are the corridor's rectangles and bridges.
     """
 
     replan_interval: int = 5
@@ -209,6 +221,7 @@ class SensingConfig:
     straight_brake: bool = False
     keep_rects: bool = False
     route_polyline: bool = False
+    grow: float = 0.0
 
     def __post_init__(self) -> None:
         if isinstance(self.replan_interval, bool) or not isinstance(self.replan_interval, int) \
@@ -249,8 +262,20 @@ class SensingConfig:
             raise ValueError(f"SensingConfig.route_polyline: expected True or False, got {self.route_polyline!r}")
         if not isinstance(self.keep_rects, bool):
             raise ValueError(f"SensingConfig.keep_rects: expected True or False, got {self.keep_rects!r}")
+        if not (isinstance(self.grow, (int, float)) and not isinstance(self.grow, bool)
+                and math.isfinite(self.grow) and 0 <= self.grow <= 10):
+            raise ValueError(f"SensingConfig.grow: expected a number in [0, 10] [m], got {self.grow!r}")
         if not isinstance(self.background_replan, bool):
             raise ValueError(f"SensingConfig.background_replan: expected True or False, got {self.background_replan!r}")
+
+
+def _growing(areas: SafeAreas, sensed: SensedMap, grow: float, tighten: float) -> SafeAreas:
+    """``areas`` carrying the :class:`~sanav_mj.mapping.grow.FreeCells` of the cells safe in
+    ``sensed`` now (growth limit ``grow`` [m], ``tighten`` [m]), so SA-MPC's corridor chain
+    grows its boxes into them (``SensingConfig.grow``); ``areas`` itself when ``grow`` is 0."""
+    if grow <= 0:
+        return areas
+    return replace(areas, free=FreeCells.of(sensed.grid.safe_grid(), grow, tighten))
 
 
 @dataclass(frozen=True)
@@ -441,6 +466,7 @@ class SensingSAMPC:
         self._have_route = False  # route areas exist (after the first scan, when kept)
         self._route_dirty = True  # route or route grid changed since the route was last found clear
         self._corridor_rects = np.zeros((0, 4))
+        self._plain_rects = self._corridor_rects  # the corridor's rectangles (without grown boxes)
         self.route: np.ndarray | None = None
         self.local_goal: np.ndarray | None = None
         self.records: list[StepRecord] = []
@@ -645,7 +671,7 @@ class SensingSAMPC:
         if self.config.keep_rects and self.mpc is not None and not self._mpc_fresh and self._predicted is not None:
             g = self.map.grid
             pts = np.vstack([pose[None, :2], self._predicted[1:, :2]])
-            kept = kept_prefix(self._corridor_rects, pts, g.blocked, g.origin, g.resolution)
+            kept = kept_prefix(self._plain_rects, pts, g.blocked, g.origin, g.resolution)
         return (pose.copy(), speed, reason, self._areas, self._boxes, self._have_route, self.mpc is not None, kept)
 
     def _compute(self, pose: np.ndarray, speed: float, reason: str, areas: SafeAreas, boxes: np.ndarray,
@@ -715,6 +741,7 @@ class SensingSAMPC:
         return route[stop - 1].copy()
 
     def _follow(self, plan: Plan, pose: np.ndarray, areas: SafeAreas, boxes: np.ndarray) -> None:
+        areas = _growing(areas, self.map, self.config.grow, self.mpc_config.footprint_grow_tighten)
         u_prev = np.array([0.0, self._turn_w])
         if self.mpc is None and self._spare is None:
             self.mpc = self._mpc_class(self.robot, areas, plan, self.mpc_config, footprint=self.body.mpc_footprint)
@@ -729,7 +756,10 @@ class SensingSAMPC:
         else:
             self.mpc.replace_plan(areas, plan)
         self._mpc_fresh = False
-        self._corridor_rects = np.asarray(areas.rects, dtype=float)[np.asarray(plan.corridor, int)]
+        self._plain_rects = np.asarray(areas.rects, dtype=float)[np.asarray(plan.corridor, int)]
+        # with growth, the grown chain members too: checked at every scan (``blocked``)
+        self._corridor_rects = self._plain_rects if areas.free is None else \
+            np.vstack([self._plain_rects, np.asarray(self.mpc.chain.boxes, dtype=float)])
         self.plan_boxes = boxes
 
     def _scan_turn(self, obs: Observation) -> Command:

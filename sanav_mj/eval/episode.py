@@ -519,15 +519,17 @@ LIDAR_PREDICTION_STOP_M = 0.03
 
 
 def lidar_spec(cspec: ControllerSpec) -> ControllerSpec:
-    """``cspec`` as a lidar run uses it: in ``"discs"`` mode with ``footprint_refine`` 1,
-    ``footprint_grow`` 0, the stage boxes shrunk by ``box_margin``, no open-space speed
+    """``cspec`` as a lidar run uses it: in ``"discs"`` mode with the stage boxes shrunk by
+    ``box_margin`` (not ``footprint_box_margin``), no open-space speed
     (``footprint_open_speed`` None: not measured with the lidar), the prediction monitor's
     box tightening off and its derating's ``stop`` at least :data:`LIDAR_PREDICTION_STOP_M`;
     ``cspec`` itself otherwise.
 
-    The sensed map is one grid of the run's resolution: the known map's local refinement and
-    the growth of the chain's boxes to maximal free rectangles of a fixed grid are not
-    applied to it (the run document says refine 1 and grow 0). The tightening shrinks the
+    ``footprint_refine`` and ``footprint_grow`` are kept, with the sensed map's meaning
+    (:func:`lidar_controller`): the sensed grid's cells are ``resolution / footprint_refine``
+    everywhere (:func:`lidar_cell`; the live grid is one grid, the known map refines only
+    where the free space is narrow), and the corridor chain's boxes grow into the sensed
+    *safe* cells (``SensingConfig.grow``). The tightening shrinks the
     stage boxes by the measured one-step prediction error, whose bound assumes the measured
     state is the true one; with the lidar the measured state is the localiser's, and its
     scan-match corrections enter that error: with it on, 2 of the 25 paper-scenario runs
@@ -547,9 +549,31 @@ def lidar_spec(cspec: ControllerSpec) -> ControllerSpec:
     pred = mpc.footprint_prediction
     if pred is not None and (pred.tighten or pred.stop < LIDAR_PREDICTION_STOP_M):
         pred = replace(pred, tighten=False, stop=max(pred.stop, LIDAR_PREDICTION_STOP_M))
-    used = replace(mpc, footprint_refine=1, footprint_grow=0.0, footprint_box_margin=mpc.box_margin,
-                   footprint_open_speed=None, footprint_prediction=pred)
+    used = replace(mpc, footprint_box_margin=mpc.box_margin, footprint_open_speed=None, footprint_prediction=pred)
     return cspec if used == mpc else replace(cspec, sa_mpc=used)
+
+
+def lidar_match(refine: float):
+    """The scan matcher's settings on a sensed grid ``refine`` times finer than the base
+    cells: the defaults (``ScanMatchConfig``) with the settings counted in cells
+    (``radius_cells``, ``xy_window``) multiplied by ``refine`` (rounded), so the matcher
+    reaches as far in metres as on the base grid. On 0.025 m cells with the 0.05 m counts
+    the nearest-point search reached 0.05 m instead of 0.1 m, and the turn on the spot of
+    single_rect seed 3 saw only ``few_points`` matches (scans not added) for 7 s."""
+    from dataclasses import replace
+
+    from sanav_mj.mapping.scan_match import ScanMatchConfig
+
+    m = ScanMatchConfig()
+    k = max(1, int(round(refine)))
+    return m if k == 1 else replace(m, radius_cells=m.radius_cells * k, xy_window=m.xy_window * k)
+
+
+def lidar_cell(resolution: float, cspec: ControllerSpec) -> float:
+    """[m] the sensed grid's cell edge of a lidar run with base cells of ``resolution`` [m]:
+    ``resolution / footprint_refine`` in ``"discs"`` mode, ``resolution`` otherwise."""
+    mpc = cspec.sa_mpc
+    return resolution / mpc.footprint_refine if mpc.footprint == "discs" else resolution
 
 
 def sensed_narrow_width(lost: float, resolution: float) -> float:
@@ -577,12 +601,13 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
     the known-map mode's inflation (:func:`map_inflation`: circumscribed radius +
     :data:`DEFAULT_MARGIN_M`, or in ``"discs"`` mode the disc cover's radius +
     ``footprint_margin``), the lidar offset of the robot file, the planner matched to the MPC,
-    one grid of ``resolution`` [m] cells (the known map's local refinement,
-    ``footprint_refine``, is not applied to the sensed map) and, in ``"discs"`` mode, the
-    known map's narrow-passage penalty of the corridor search (:func:`planning_areas`).
+    one grid of :func:`lidar_cell` cells (``resolution`` [m], divided by ``footprint_refine``
+    in ``"discs"`` mode) and, in ``"discs"`` mode, the known map's narrow-passage penalty of
+    the corridor search (:func:`planning_areas`, counted in those cells) and the chain's
+    growth into the sensed safe cells (``SensingConfig.grow`` = ``footprint_grow``).
 
-    ``cspec`` is first taken as :func:`lidar_spec` gives it (no refinement, no grown chains,
-    no box tightening in ``"discs"`` mode).
+    ``cspec`` is first taken as :func:`lidar_spec` gives it (no box tightening in
+    ``"discs"`` mode).
 
     Raises:
         ValueError: ``"discs"`` with ``footprint_route="pose"`` (a known-map setting: the pose
@@ -595,10 +620,10 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
 
     cspec = lidar_spec(cspec)
     mpc = cspec.sa_mpc
-    if mpc.footprint == "discs" and (mpc.footprint_grow > 0 or mpc.footprint_route != "corridor"):
-        raise ValueError(f"sensing lidar with MPCConfig.footprint='discs': expected footprint_grow=0 and "
-                         f"footprint_route='corridor', got footprint_grow={mpc.footprint_grow!r}, "
-                         f"footprint_route={mpc.footprint_route!r}")
+    base, resolution = resolution, lidar_cell(resolution, cspec)
+    if mpc.footprint == "discs" and mpc.footprint_route != "corridor":
+        raise ValueError(f"sensing lidar with MPCConfig.footprint='discs': expected footprint_route='corridor', "
+                         f"got footprint_route={mpc.footprint_route!r}")
     lcfg = lidar_config(scenario.model)
     inflation = map_inflation(scenario, cspec)
     narrow = sensed_narrow_width(scenario.robot.footprint_radius + DEFAULT_MARGIN_M - inflation, resolution) \
@@ -606,9 +631,10 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
     spec = cspec.with_solve_budget(mismatch.solve_budget_ms)
     return SensingSAMPC(scenario.robot, scenario.bounds, scenario.goal, inflation, lcfg.offset,
                         spec.sa_mpc, planner_config(scenario.robot, spec),
-                        SensingConfig(map=SensedMapConfig(resolution=resolution),
+                        SensingConfig(map=SensedMapConfig(resolution=resolution, match=lidar_match(base / resolution)),
                                       footprint=robot_footprint(scenario.model), narrow_width=narrow,
-                                      refresh=mpc.footprint == "discs", straight_brake=mpc.footprint == "discs"))
+                                      refresh=mpc.footprint == "discs", straight_brake=mpc.footprint == "discs",
+                                      grow=mpc.footprint_grow if mpc.footprint == "discs" else 0.0))
 
 
 def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, resolution: float,
@@ -624,8 +650,8 @@ def _run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, reso
     from sanav_mj.sim.runner import run_episode
 
     if isinstance(source, Prepared):
-        # the sensed map is one grid: a Prepared of a refined discs map has cells of
-        # resolution / footprint_refine (map_config), the base cells are the lidar map's
+        # a Prepared of a refined discs map has cells of resolution / footprint_refine
+        # (map_config): its base cells, divided again by lidar_controller (lidar_cell)
         mpc = cspec.sa_mpc
         refine = mpc.footprint_refine if mpc.footprint == "discs" and mpc.footprint_refine > 1 else 1
         scenario, resolution = source.scenario, source.grid.resolution * refine

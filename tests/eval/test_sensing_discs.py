@@ -15,9 +15,9 @@ import math
 import numpy as np
 import pytest
 
-from sanav_mj.eval.episode import (DEFAULT_MARGIN_M, footprint_spec, lidar_controller, lidar_spec, prepare,
-                                   run_scenario)
 from sanav_mj.control.prediction import PredictionDerating
+from sanav_mj.eval.episode import (DEFAULT_MARGIN_M, footprint_spec, lidar_cell, lidar_controller, lidar_spec,
+                                   prepare, run_scenario)
 from sanav_mj.footprint import robot_footprint
 from sanav_mj.scene import load_scenario
 
@@ -85,7 +85,11 @@ def _discs_checked_run(scenario: str, seed: int):
         return con
 
     mpc.constrain = constrain
-    truth = prepare(sc, controller=lidar_spec(DISCS)).grid
+    # the true grid of the sensed map's cells (0.05 / footprint_refine m), one grid as the sensed one
+    from dataclasses import replace
+
+    one = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_refine=1))
+    truth = prepare(sc, resolution=ctrl.map.grid.resolution, controller=lidar_spec(one)).grid
     assert truth.resolution == ctrl.map.grid.resolution
     assert truth.inflation == pytest.approx(ctrl.map.grid.inflation, abs=1e-12)
     checked, first_plan = [], []
@@ -128,7 +132,11 @@ def test_discs_lidar_run_keeps_every_disc_centre_in_observed_free_space():
     assert len(checked) > 50  # the per-disc check ran on the solved steps
     assert first_plan == [True]
     assert doc["sensing"] == "lidar" and doc["footprint"]["mode"] == "discs"
-    assert doc["footprint"]["refine"] == 1 and doc["footprint"]["grow_m"] == 0.0  # the sensed map is one grid
+    # the sensed map is one grid of 0.05 / footprint_refine m cells; the chain grows into its
+    # safe cells (the discs defaults: refine 2, grow 1 m)
+    assert doc["footprint"]["refine"] == DISCS.sa_mpc.footprint_refine == 2
+    assert doc["footprint"]["grow_m"] == DISCS.sa_mpc.footprint_grow == 1.0
+    assert ctrl.config.grow == 1.0 and ctrl.map.grid.resolution == 0.025
     assert ctrl.map.grid.inflation == pytest.approx(
         robot_footprint(load_scenario("u_shape").model).discs(3)[1] + DISCS.sa_mpc.footprint_margin)
 
@@ -138,20 +146,27 @@ def test_discs_lidar_refuses_or_drops_known_map_only_settings():
 
     sc = load_scenario("single_rect")
     spec = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_route="pose"))
-    with pytest.raises(ValueError, match="footprint_grow=0 and footprint_route='corridor'"):
+    with pytest.raises(ValueError, match="footprint_route='corridor'"):
         lidar_controller(sc, spec)
-    # refinement and grown chains are settings of a fixed grid: a lidar run drops them (its
-    # document says so), whatever the discs defaults are
-    grown = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_grow=1.0, footprint_refine=2))
+    # refinement and growth keep their sensed-map meaning: cells of 0.05 / refine m everywhere,
+    # the chain grown into the sensed safe cells; the disc mode has neither
+    grown = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_grow=0.5, footprint_refine=4))
     used = lidar_spec(grown).sa_mpc
-    assert (used.footprint_grow, used.footprint_refine) == (0.0, 1)
+    assert (used.footprint_grow, used.footprint_refine) == (0.5, 4)
+    ctrl = lidar_controller(sc, grown)
+    assert ctrl.config.grow == 0.5 and ctrl.map.grid.resolution == 0.0125
+    disc = lidar_controller(sc, footprint_spec())
+    assert disc.config.grow == 0.0 and disc.map.grid.resolution == 0.05
+    assert lidar_cell(0.05, grown) == 0.0125 and lidar_cell(0.05, footprint_spec()) == 0.05
     # the tightening's bound assumes the measured state is the true one: off with the localiser
     assert grown.sa_mpc.footprint_prediction.tighten and not used.footprint_prediction.tighten
     # the known map's footprint_box_margin (0) is sized from that map's measured error; the lidar run keeps box_margin
     assert grown.sa_mpc.footprint_box_margin == 0.0 and used.footprint_box_margin == grown.sa_mpc.box_margin == 0.02
     # and the derating it was measured with (stop 0.03; the known map's 0.02 stalled complex/2)
     assert grown.sa_mpc.footprint_prediction.stop == 0.02 and used.footprint_prediction.stop == 0.03
-    assert used == replace(grown.sa_mpc, footprint_grow=0.0, footprint_refine=1, footprint_box_margin=0.02,
+    # the open-space speed is a known-map setting (not measured with the lidar)
+    assert grown.sa_mpc.footprint_open_speed is not None and used.footprint_open_speed is None
+    assert used == replace(grown.sa_mpc, footprint_box_margin=0.02, footprint_open_speed=None,
                            footprint_prediction=replace(grown.sa_mpc.footprint_prediction, tighten=False, stop=0.03))
     # a larger stop (a gentler derating) is kept; the tightening still goes
     own = replace(grown, sa_mpc=replace(grown.sa_mpc, footprint_prediction=PredictionDerating(stop=0.05)))
@@ -160,11 +175,66 @@ def test_discs_lidar_refuses_or_drops_known_map_only_settings():
     assert lidar_spec(footprint_spec()) == footprint_spec()
 
 
+def _first_plan(grow: float):
+    """A discs-mode lidar controller (0.05 m cells) with ``footprint_grow`` = ``grow`` [m] after its first
+    step at the origin with a full-circle scan of 3 m and no return."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from sanav_mj.control.base import Observation
+
+    spec = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_grow=grow, footprint_refine=1))  # 0.05 m cells
+    ctrl = lidar_controller(load_scenario("single_rect"), spec)
+    ctrl.reset(np.zeros(3))
+    a = np.linspace(-math.pi, math.pi, 720, endpoint=False)
+    scan = SimpleNamespace(ranges=np.full(720, 3.0), hit=np.zeros(720, bool), angles=a)
+    ctrl.step(Observation(t=0.0, pose=np.zeros(3), velocity=np.zeros(2), scan=scan))
+    assert ctrl.mpc is not None and ctrl.records[0].replan == "initial"
+    return ctrl
+
+
+def _contains(outer, inner):
+    return bool(np.all(outer[:2] <= inner[:2] + 1e-12) and np.all(outer[2:] >= inner[2:] - 1e-12))
+
+
+def test_discs_lidar_grows_the_chain_into_safe_cells_and_replans_when_a_grown_box_is_hit():
+    """The corridor chain's boxes grow to maximal rectangles of the sensed *safe* cells (the
+    quadtree's staircase of areas around a disc of seen free space leaves room beside each
+    rectangle); each grown box holds its plain member, only safe cells, and is checked at
+    every scan: a return inside a grown box, outside every corridor rectangle, replans
+    (``blocked``). Without growth the chain is the corridor's rectangles and bridges."""
+    plain = _first_plan(0.0)
+    assert len(plain.records[0].corridor_rects) == len(plain._plain_rects)
+    ctrl = _first_plan(1.0)
+    corridor, boxes = ctrl._plain_rects, np.asarray(ctrl.mpc.chain.boxes)
+    np.testing.assert_array_equal(corridor, plain._plain_rects)  # the same corridor
+    assert len(boxes) == 2 * len(corridor) - 1
+    for k, r in enumerate(corridor):
+        assert _contains(boxes[2 * k], r)
+    assert any(not np.array_equal(b, p) for b, p in zip(boxes, np.asarray(plain.mpc.chain.boxes)))
+    assert ctrl.map.rects_still_safe(boxes).all()
+    np.testing.assert_array_equal(ctrl.records[0].corridor_rects, np.vstack([corridor, boxes]))
+    # a return at (0.12, 0.9): inside the first grown box, farther than the inflation from
+    # every corridor rectangle (the first ends at y = 0.2, the others start at x = 2.2)
+    hit = np.array([0.12, 0.9])
+    assert any(_contains(b, np.r_[hit, hit]) for b in boxes)
+    assert not any(_contains(r, np.r_[hit, hit]) for r in corridor)
+    pose = ctrl.estimate.copy()
+    origin = pose[:2] + 0.12 * np.array([math.cos(pose[2]), math.sin(pose[2])])
+    d = hit - origin
+    up = ctrl.map.integrate(pose, np.array([np.hypot(*d)]), np.array([True]),
+                            np.array([math.atan2(d[1], d[0]) - pose[2]]))
+    assert up.changed
+    assert ctrl.map.rects_still_safe(corridor).all()
+    assert ctrl._replan_reason(True, pose) == "blocked"
+    assert plain._replan_reason(False, plain.estimate) != "blocked"
+
+
 def test_lidar_run_from_a_refined_prepared_map_uses_the_base_cells():
     prep = prepare("single_rect", controller=DISCS)  # refined: 0.025 m cells where narrow
     assert prep.grid.resolution == pytest.approx(0.025)
     out = run_scenario(prep, seed=0, sensing="lidar", controller_spec=DISCS, time_limit_s=0.3)
-    assert out.sensed.map.grid.resolution == 0.05
+    assert out.sensed.map.grid.resolution == 0.025  # the base 0.05 m cells, refined by 2 everywhere
 
 
 def test_discs_mode_counts_the_robot_in_safe_space_only_when_every_disc_centre_is():
@@ -228,7 +298,7 @@ def test_discs_lidar_controller_narrow_width():
     from sanav_mj.eval.episode import sensed_narrow_width
 
     # at margin 0.05 m: 0.330 + 0.05 - (0.2305 + 0.05) = 0.0985 m lost, strips of up to 4 cells narrow
-    m05 = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_margin=0.05))
+    m05 = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_margin=0.05, footprint_refine=1))  # 0.05 m cells
     ctrl = lidar_controller(sc, m05)
     lost = sc.robot.footprint_radius + DEFAULT_MARGIN_M - ctrl.map.grid.inflation
     assert 0.0975 < lost < 0.1
@@ -236,7 +306,8 @@ def test_discs_lidar_controller_narrow_width():
     # the default's margin gives the width of its own lost inflation
     ctrl = lidar_controller(sc, DISCS)
     lost = sc.robot.footprint_radius + DEFAULT_MARGIN_M - ctrl.map.grid.inflation
-    assert ctrl.config.narrow_width == sensed_narrow_width(lost, 0.05) == ctrl.body.narrow_width
+    assert ctrl.map.grid.resolution == 0.025  # counted in the sensed cells: 0.05 / footprint_refine
+    assert ctrl.config.narrow_width == sensed_narrow_width(lost, 0.025) == ctrl.body.narrow_width
     assert lidar_controller(sc).config.narrow_width == 0.0
 
 
@@ -251,3 +322,25 @@ def test_sensing_config_discs_fields_are_validated(kwargs, match):
 
     with pytest.raises(ValueError, match=match):
         SensingConfig(**kwargs)
+
+
+def test_scan_matcher_reaches_as_far_in_metres_on_the_finer_sensed_cells():
+    """On the discs mode's 0.025 m cells the matcher's cell-counted settings are doubled
+    (:func:`lidar_match`), so it pairs returns as far as on 0.05 m cells. With the 0.05 m
+    counts the turn on the spot at the start of single_rect seed 3 (an open room: few returns)
+    gave only ``few_points`` matches, its scans were not added and the robot turned for 7 s
+    before its first plan; with them the matches are used and it plans after 2.2 s."""
+    from sanav_mj.eval.episode import lidar_match
+    from sanav_mj.mapping.scan_match import ScanMatchConfig
+
+    base = ScanMatchConfig()
+    assert lidar_match(1.0) == base
+    assert (lidar_match(2.0).radius_cells, lidar_match(2.0).xy_window) == (2 * base.radius_cells, 2 * base.xy_window)
+    ctrl = lidar_controller(load_scenario("single_rect"), DISCS)
+    assert ctrl.map.grid.resolution == 0.025 and ctrl.config.map.match == lidar_match(2.0)
+    out = run_scenario("single_rect", seed=3, sensing="lidar", controller_spec=DISCS, time_limit_s=3.0)
+    statuses = [m[0] for m in out.sensed.match_log]
+    assert "few_points" not in statuses
+    assert out.sensed.mpc is not None  # the first plan came within the 3 s
+    first = next(i for i, r in enumerate(out.sensed.records) if r.replan == "initial")
+    assert first * 0.1 < 3.0
