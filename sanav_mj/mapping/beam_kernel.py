@@ -270,6 +270,7 @@ static int64_t spread(int64_t n, const int64_t *cells, const int8_t *d, int64_t 
    L >= occ_thresh: occupied); the count of non-free cells spread where the free state
    flipped, the count of route-blocking cells (occupied, or ever hit) where that flipped.
    par = {l_free, l_occ, l_min, l_max, free_thresh, occ_thresh, hit_floor} (float32).
+   The route counts use their own kernel (K2, koff2, nrows2, rows2: within radius r as well).
    Outputs: state_out (cells whose state changed, in touched order), safe_out / route_out
    (sorted grid cells whose count crossed zero); n_out = {states, safe, route}.
    Scratch: cells_tmp (T), d_tmp (T), seen and list (padded size). */
@@ -277,7 +278,7 @@ void sanav_commit(int64_t T, const int64_t *touched, int8_t *mark, float *lo, fl
                   int64_t has_floor, int64_t ny, int64_t nx, int64_t r, int64_t pw, int64_t K, const int64_t *koff,
                   int32_t *pad, int32_t *route, int64_t *state_out, int64_t *safe_out, int64_t *route_out,
                   int64_t *n_out, int64_t *cells_tmp, int8_t *d_tmp, int8_t *seen, int64_t *list, int64_t nrows,
-                  const int64_t *rows)
+                  const int64_t *rows, int64_t K2, const int64_t *koff2, int64_t nrows2, const int64_t *rows2)
 {
     const float delta[3] = {0.0f, par[0], par[1]};
     const float l_min = par[2], l_max = par[3], ft = par[4], ot = par[5], hf = par[6];
@@ -319,8 +320,8 @@ void sanav_commit(int64_t T, const int64_t *touched, int8_t *mark, float *lo, fl
     n_out[1] = spread(nf, cells_tmp, d_tmp, ny, nx, r, pw, K, koff, pad, seen, list, safe_out, nrows, rows);
     /* the route cells go through cells_tmp as well (safe_out is done with it) */
     for (int64_t i = 0; i < nr; ++i) { cells_tmp[i] = route_out[i]; d_tmp[i] = d_tmp[T + i]; }
-    n_out[2] = spread(nr, cells_tmp, d_tmp, ny, nx, r, pw, K, koff, route, seen, list, route_out, nrows,
-                      rows);
+    n_out[2] = spread(nr, cells_tmp, d_tmp, ny, nx, r, pw, K2, koff2, route, seen, list, route_out, nrows2,
+                      rows2);
 }
 """
 
@@ -333,7 +334,7 @@ _load = kernel_loader("beams", _SOURCE, "the beam traversal kernel", NO_KERNEL_E
     "sanav_scan_cells": (ctypes.c_int64, [ctypes.c_int64, ctypes.c_double, ctypes.c_double] + [ctypes.c_void_p] * 2
                          + [ctypes.c_int64] * 2 + [ctypes.c_void_p] * 3 + [ctypes.c_float, ctypes.c_void_p]),
     "sanav_commit": (None, [ctypes.c_int64] + [ctypes.c_void_p] * 5 + [ctypes.c_int64] * 6 + [ctypes.c_void_p] * 11
-                     + [ctypes.c_int64, ctypes.c_void_p]),
+                     + [ctypes.c_int64, ctypes.c_void_p] * 3),
 })
 
 
@@ -533,7 +534,8 @@ class CommitScratch:
 
 def commit_cells(touched: np.ndarray, mark: np.ndarray, log_odds: np.ndarray, floor: np.ndarray,
                  params: np.ndarray, has_floor: bool, shape: tuple[int, int], r: int, koff: np.ndarray,
-                 pad: np.ndarray, route: np.ndarray, scratch: CommitScratch, rows: np.ndarray | None = None
+                 pad: np.ndarray, route: np.ndarray, scratch: CommitScratch, rows: np.ndarray | None = None,
+                 route_koff: np.ndarray | None = None, route_rows: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The log-odds update and count spreading of :meth:`LiveGrid._commit
     <sanav_mj.mapping.live_grid.LiveGrid._commit>` in one compiled call, or None without the
@@ -556,6 +558,8 @@ def commit_cells(touched: np.ndarray, mark: np.ndarray, log_odds: np.ndarray, fl
         rows: (Q, 2) int64 the kernel as row runs ``(row offset, half width)`` (the same
             cells as ``koff``): many changed cells are then spread over their bounding
             window by row runs instead of cell by offset. None: always by offset.
+        route_koff, route_rows: the kernel of the ``route`` counts, as ``koff`` and ``rows``
+            (offsets within radius ``r``); None: the same as ``koff`` and ``rows``.
 
     Returns:
         (state_changed, safe_changed, route_changed) int64 flat indices as
@@ -570,7 +574,9 @@ def commit_cells(touched: np.ndarray, mark: np.ndarray, log_odds: np.ndarray, fl
     for name, a, dt in (("touched", touched, np.int64), ("mark", mark, np.int8), ("log_odds", log_odds, np.float32),
                         ("floor", floor, np.float32), ("params", params, np.float32), ("koff", koff, np.int64),
                         ("pad", pad, np.int32), ("route", route, np.int32)) + (() if rows is None else
-                                                                             (("rows", rows, np.int64),)):
+                                                                             (("rows", rows, np.int64),)) + (
+            () if route_koff is None else (("route_koff", route_koff, np.int64),)) + (
+            () if route_rows is None else (("route_rows", route_rows, np.int64),)):
         if a.dtype != dt or not a.flags.c_contiguous:
             raise ValueError(f"commit_cells: {name} must be a contiguous {np.dtype(dt)} array, got {a.dtype}")
     if not (mark.size == log_odds.size == floor.size == ny * nx):
@@ -579,7 +585,9 @@ def commit_cells(touched: np.ndarray, mark: np.ndarray, log_odds: np.ndarray, fl
     if len(pad) != scratch.padded_size or len(route) != scratch.padded_size:
         raise ValueError(f"commit_cells: pad and route must have {scratch.padded_size} cells, got "
                          f"{len(pad)}, {len(route)}")
-    spread = min(T * len(koff), scratch.padded_size)
+    if route_koff is None:
+        route_koff, route_rows = koff, rows
+    spread = min(T * max(len(koff), len(route_koff)), scratch.padded_size)
     scratch.reserve(T, spread)
     out = scratch.out
     state_out = out[:T]
@@ -592,5 +600,7 @@ def commit_cells(touched: np.ndarray, mark: np.ndarray, log_odds: np.ndarray, fl
     lib.sanav_commit(T, address(touched), ad(mark), ad(log_odds), ad(floor), ad(params), int(has_floor), ny, nx,
                      r, nx + 2 * r, len(koff), ad(koff), ad(pad), ad(route), base, base + 8 * (2 * T),
                      base + 8 * (2 * T + spread), ad(n), base + 8 * T, ad(scratch.d), ad(scratch.seen),
-                     ad(scratch.list), 0 if rows is None else len(rows), None if rows is None else ad(rows))
+                     ad(scratch.list), 0 if rows is None else len(rows), None if rows is None else ad(rows),
+                     len(route_koff), ad(route_koff), 0 if route_rows is None else len(route_rows),
+                     None if route_rows is None else ad(route_rows))
     return state_out[:n[0]].copy(), safe_out[:n[1]].copy(), route_out[:n[2]].copy()

@@ -16,6 +16,7 @@ from sanav_mj.mapping.live_grid import (
     LiveGrid,
     LiveGridConfig,
     dilate_count,
+    centre_offsets,
     inflation_offsets,
     traverse,
 )
@@ -85,6 +86,17 @@ def test_inflation_offsets_square_to_square_distance():
     assert (3, 3) not in got  # gap hypot(2, 2) * 0.05 = 0.141
     assert (0, 0) in got and len(got) == len({(-a, -b) for a, b in got} & got)
 
+
+
+def test_centre_offsets_centre_to_centre_distance():
+    off = centre_offsets(0.12, 0.05)
+    got = {tuple(o) for o in off.tolist()}
+    # hypot(di, dj) * 0.05 <= 0.12: |di| <= 2 on an axis, (2, 1) at 0.112 in, (2, 2) at 0.141 out
+    assert (2, 0) in got and (3, 0) not in got and (2, 1) in got and (2, 2) not in got
+    assert (0, 0) in got and len(got) == 21  # 1 + 8 on the axes + 4 at (1, 1) + 8 at (2, 1)
+    assert got <= {tuple(o) for o in inflation_offsets(0.12, 0.05).tolist()}
+    with pytest.raises(ValueError, match="route_kernel must be 'centre' or 'square', got 'disc'"):
+        LiveGridConfig(route_kernel="disc")
 
 
 def test_single_scan_states():
@@ -182,14 +194,18 @@ def _brute_safe(states, inflation, h):
     return out
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_incremental_safe_grid_equals_recomputation(seed):
+@pytest.mark.parametrize("seed,route_kernel,compiled", [(0, "square", True), (1, "square", True), (2, "square", True),
+                                                     (0, "centre", True), (1, "centre", False), (2, "square", False)])
+def test_incremental_safe_grid_equals_recomputation(seed, route_kernel, compiled):
     """Random scans in a room with a moving inner wall (cells go free -> occupied -> free):
-    after every scan the incremental safe grid and the changed-cell lists are exact."""
+    after every scan the incremental safe grid, the route grid (either kernel, compiled or
+    NumPy commit) and the changed-cell lists are exact."""
     rng = np.random.default_rng(seed)
     h, infl = 0.1, 0.23
     bounds = (0.0, 0.0, 6.05, 4.0)  # not a whole number of cells wide: last column straddles
-    g = LiveGrid(bounds, h, infl)
+    g = LiveGrid(bounds, h, infl, LiveGridConfig(route_kernel=route_kernel))
+    g._use_commit_kernel = compiled
+    route_offsets = centre_offsets(infl, h) if route_kernel == "centre" else inflation_offsets(infl, h)
     assert np.all(g.states()[:, -1] == OCCUPIED)
     route_now = g.route_safe()
     n_route = 0
@@ -209,7 +225,7 @@ def test_incremental_safe_grid_equals_recomputation(seed):
         # the route grid: only occupied cells block (unknown is passable)
         route_before = route_now
         ever_hit = (g._floor == g.config.hit_floor).reshape(g.shape)
-        route_now = dilate_count((s_after == OCCUPIED) | ever_hit, inflation_offsets(infl, h)) == 0
+        route_now = dilate_count((s_after == OCCUPIED) | ever_hit, route_offsets) == 0
         assert np.array_equal(g.route_safe(), route_now)
         assert up.route_changed.tolist() == np.flatnonzero((route_before != route_now).ravel()).tolist()
         n_route += len(up.route_changed)
@@ -452,3 +468,62 @@ def test_compiled_scan_traversal_equals_segment_columns_and_free_cells():
             expect = mark_ref.copy()
             expect[occ] = 2
             assert np.array_equal(mark2, expect)
+
+
+def _cast_boxes(o, ang, boxes, rmax):
+    """Ranges [m] and hit flags of beams from ``o`` at world angles ``ang`` against
+    axis-aligned boxes (x0, y0, x1, y1) (slab method, written for this test)."""
+    d = np.stack([np.cos(ang), np.sin(ang)], 1)
+    best = np.full(len(ang), np.inf)
+    for x0, y0, x1, y1 in boxes:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tx = np.stack([(x0 - o[0]) / d[:, 0], (x1 - o[0]) / d[:, 0]], 1)
+            ty = np.stack([(y0 - o[1]) / d[:, 1], (y1 - o[1]) / d[:, 1]], 1)
+        tn = np.maximum(tx.min(1), ty.min(1))
+        tf = np.minimum(tx.max(1), ty.max(1))
+        ok = (tf >= tn) & (tn > 0)
+        best = np.where(ok & (tn < best), tn, best)
+    hit = best <= rmax
+    return np.where(hit, best, rmax), hit
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_route_grid_keeps_a_gap_the_known_map_passes(seed):
+    """A 0.63 m gap in a wall, scanned with 0.02 m range noise at 0.025 m cells and 0.27 m
+    inflation (the discs mode's): the known map (true boxes, same inflation) passes it; the
+    route grid with the square-to-square kernel closes it (return cells up to a few cells in
+    front of the surface, one more cell from the kernel), the centre kernel (opt-in) keeps
+    it open; the safe grid is the same with either."""
+    from scipy import ndimage
+
+    from sanav_mj.mapping.occupancy import rasterise
+    from sanav_mj.scene import Obstacle
+
+    h, infl, gap = 0.025, 0.27, 0.63
+    bounds = (0.0, 0.0, 3.0, 3.0)
+    boxes = [(0.0, 2.0, 1.5 - gap / 2, 2.3), (1.5 + gap / 2, 2.0, 3.0, 2.3)]
+    grids = {k: LiveGrid(bounds, h, infl, LiveGridConfig(route_kernel=k)) for k in ("square", "centre")}
+    rng = np.random.default_rng(seed)
+    ang = np.linspace(-np.pi, np.pi, 1080, endpoint=False)
+    for _ in range(20):
+        o = np.array([1.5 + rng.uniform(-0.6, 0.6), rng.uniform(0.6, 1.4)])
+        r, hit = _cast_boxes(o, ang, boxes, 5.0)
+        r = np.where(hit, r + rng.normal(0, 0.02, len(r)), r)
+        for g in grids.values():
+            g.integrate(o, 0.0, r, hit, ang)
+    obs = [Obstacle(f"b{i}", "box", np.array([(b[0] + b[2]) / 2, (b[1] + b[3]) / 2]), 0.0,
+                    np.array([(b[2] - b[0]) / 2, (b[3] - b[1]) / 2]), 0.4, i) for i, b in enumerate(boxes)]
+    known_free = ~rasterise(obs, bounds, h, inflation=infl).occupied
+
+    def through(free):
+        lab, _ = ndimage.label(free)
+        a, b = lab[int(1.0 / h), int(1.5 / h)], lab[int(2.8 / h), int(1.5 / h)]
+        return bool(a and a == b)
+
+    assert through(known_free)
+    assert not through(grids["square"].route_safe())
+    assert through(grids["centre"].route_safe())
+    # the kernel choice leaves the map and the safe grid alone; safe implies route-safe
+    assert np.array_equal(grids["centre"].log_odds, grids["square"].log_odds)
+    assert np.array_equal(grids["centre"].safe(), grids["square"].safe())
+    assert np.all(grids["centre"].route_safe() | ~grids["centre"].safe())
