@@ -156,30 +156,53 @@ class DiscCover:
             return list(chain)
         return [chain] * len(self.offsets)
 
+    def assign(self, chain, xs: np.ndarray, s_prev: np.ndarray | None,
+               tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per disc centre of the states ``xs`` (N+1, 3): assignments (D, N+1) (each anchored
+        on its previous one, ``s_prev`` (D, N+1) or None), the stage boxes (D, N+1, 4) [m] of
+        those assignments as they are (neither relaxed nor tightened), and the centres
+        (N+1, D, 2) [m]. ``chain`` as in :meth:`stages`."""
+        pts = self.centres(xs)
+        chains = self.per_disc(chain)
+        ss, plain = [], []
+        for d in range(pts.shape[1]):
+            c = chains[d]
+            s = assign_stages(c, pts[:, d], first_candidates(len(c), None if s_prev is None else s_prev[d]), tol=tol)
+            ss.append(s)
+            plain.append(stage_boxes(c, s))
+        return np.array(ss), np.array(plain), pts
+
+    @staticmethod
+    def relax(plain: np.ndarray, pts0: np.ndarray,
+              tighten: tuple[float, bool] | None = None) -> tuple[np.ndarray, float]:
+        """The stage boxes (D, N+1, 4) [m] the disc rows use, from :meth:`assign`'s ``plain``
+        boxes and the stage-0 centres ``pts0`` (D, 2) [m], and the largest excursion [m] of a
+        stage-0 centre: each disc's boxes relaxed around its centre (:func:`relax_boxes`), or
+        with ``tighten`` ``(delta, follow)`` tightened by ``delta`` [m] with a capped
+        relaxation (:func:`~sanav_mj.control.stages.tighten_relax`)."""
+        bs, exc = [], 0.0
+        for d in range(plain.shape[0]):
+            if tighten is None:
+                b, e = relax_boxes(plain[d], pts0[d])
+            else:
+                b, e = tighten_relax(plain[d], pts0[d], *tighten)
+            bs.append(b)
+            exc = max(exc, e)
+        return np.array(bs), exc
+
     def stages(self, chain, xs: np.ndarray, s_prev: np.ndarray | None,
                tol: float, tighten: tuple[float, bool] | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """Per disc centre of the states ``xs`` (N+1, 3): assignments (D, N+1) (each anchored
         on its previous one, ``s_prev`` (D, N+1) or None), stage boxes (D, N+1, 4) [m] relaxed
-        around its stage-0 centre, and the largest excursion [m] of a stage-0 centre.
+        around its stage-0 centre, and the largest excursion [m] of a stage-0 centre
+        (:meth:`assign`, then :meth:`relax`).
         ``chain``: one :class:`CorridorChain` for every disc, or a list of one per disc (a
         pose route's per-disc corridors, ``Plan.disc_corridors``). ``tighten``: ``(delta,
         follow)``, the boxes tightened by ``delta`` [m] with a capped relaxation
         (:func:`~sanav_mj.control.stages.tighten_relax`); None: :func:`relax_boxes`."""
-        pts = self.centres(xs)
-        chains = self.per_disc(chain)
-        ss, bs, exc = [], [], 0.0
-        for d in range(pts.shape[1]):
-            chain = chains[d]
-            cand = first_candidates(len(chain), None if s_prev is None else s_prev[d])
-            s = assign_stages(chain, pts[:, d], cand, tol=tol)
-            if tighten is None:
-                b, e = relax_boxes(stage_boxes(chain, s), pts[0, d])
-            else:
-                b, e = tighten_relax(stage_boxes(chain, s), pts[0, d], *tighten)
-            ss.append(s)
-            bs.append(b)
-            exc = max(exc, e)
-        return np.array(ss), np.array(bs), exc
+        ss, plain, pts = self.assign(chain, xs, s_prev, tol)
+        bs, exc = self.relax(plain, pts[0], tighten)
+        return ss, bs, exc
 
     @staticmethod
     def bounds(bs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -98,7 +98,8 @@ def _disc_constraints(ctl: SAMPC, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.n
     moves (:func:`~sanav_mj.control.stages.tighten_relax`; the argument and its assumptions
     in :mod:`sanav_mj.control.prediction`); the shift check reads :func:`_shift_bounds`."""
     tight = _tightening(ctl)
-    ss, bs, excursion = ctl.discs.stages(ctl._chains(), guess, ctl._s_prev_d, ctl._check_tol, tight)
+    ss, plain, pts = ctl.discs.assign(ctl._chains(), guess, ctl._s_prev_d, ctl._check_tol)
+    bs, excursion = ctl.discs.relax(plain, pts[0], tight)
     c = ctl.discs.centre
     if ctl.disc_chains is None:
         xr, ur = exit_targets(ctl.chain, ctl._ref_chain[ctl._horizon_idx], x_ref, u_ref, ss[c], x0[:2], float(x0[2]))
@@ -107,7 +108,7 @@ def _disc_constraints(ctl: SAMPC, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.n
         xr, ur = x_ref, u_ref
         theta = sa_params_of_ids(ctl._rects, DiscCover.area_ids(ctl.disc_chains, ss), ctl.penalty.n_slots,
                                  ctl._q_sa, ctl.config.stage_box_margin)
-    shift = None if tight is None else _shift_bounds(ctl, ss, guess[0], tight[1])
+    shift = None if tight is None else _shift_bounds(plain, pts[0], tight[1])
     return Constraints(*DiscCover.bounds(bs), theta, xr, ur, excursion, (ss[c], bs[c], ss, bs), shift)
 
 
@@ -123,22 +124,20 @@ def _tightening(ctl: SAMPC) -> tuple[float, bool] | None:
     return mon.tightening(), bool(abs(u[0]) < REST_V and abs(u[1]) < REST_W)
 
 
-def _shift_bounds(ctl: SAMPC, ss: np.ndarray, x0: np.ndarray, follow: bool) -> tuple[np.ndarray, np.ndarray]:
+def _shift_bounds(plain: np.ndarray, pts0: np.ndarray, follow: bool) -> tuple[np.ndarray, np.ndarray]:
     """``"discs"`` mode with the tightening: the row bounds the fallback's shift check reads
-    (:attr:`~sanav_mj.control.tracking.Constraints.shift_bounds`) for the assignments ``ss``
-    (D, N+1) from the state ``x0`` (3,): the stage boxes *without* the tightening and
-    without relaxation (relaxed towards the measured centres only at rest, ``follow``),
-    grown by ``box_margin`` in the check as always. The shifted plan is so followed while
-    its disc centres stay in the chain members (the safe areas), whatever the tightening: a
-    jump of the error bound does not turn a plan that still fits the safe areas into a
-    braking manoeuvre (the braking steps were where the corner runs left their safe areas),
-    and the shift cannot follow the robot out (an uncapped relaxation here let a nominal run
-    creep 3 cm out over 17 shifted steps, barn_0026)."""
-    chains = ctl.discs.per_disc(ctl._chains())
-    plain = np.array([stage_boxes(chains[d], ss[d]) for d in range(len(chains))])
+    (:attr:`~sanav_mj.control.tracking.Constraints.shift_bounds`): the stage boxes ``plain``
+    (D, N+1, 4) [m] of this step's assignments (:meth:`DiscCover.assign`) *without* the
+    tightening and without relaxation (relaxed towards the stage-0 centres ``pts0`` (D, 2)
+    [m] only at rest, ``follow``), grown by ``box_margin`` in the check as always. The
+    shifted plan is so followed while its disc centres stay in the chain members (the safe
+    areas), whatever the tightening: a jump of the error bound does not turn a plan that
+    still fits the safe areas into a braking manoeuvre (the braking steps were where the
+    corner runs left their safe areas), and the shift cannot follow the robot out (an
+    uncapped relaxation here let a nominal run creep 3 cm out over 17 shifted steps,
+    barn_0026)."""
     if follow:
-        pts0 = ctl.discs.centres(x0[None])[0]
-        plain = np.array([relax_boxes(plain[d], pts0[d])[0] for d in range(len(chains))])
+        plain = np.array([relax_boxes(plain[d], pts0[d])[0] for d in range(plain.shape[0])])
     return DiscCover.bounds(plain)
 
 
