@@ -435,9 +435,7 @@ def relax_boxes(boxes: np.ndarray, p0: np.ndarray) -> tuple[np.ndarray, float]:
     stage-0 box (0 inside; for several points the largest).
     """
     p0 = np.asarray(p0, dtype=float)
-    pts = p0.reshape(-1, 2)
-    below_p = np.maximum(boxes[0, :2] - pts, 0.0)
-    above_p = np.maximum(pts - boxes[0, 2:], 0.0)
+    below_p, above_p = _beyond(boxes[0], p0.reshape(-1, 2))
     below, above = below_p.max(axis=0), above_p.max(axis=0)
     if not (below.any() or above.any()):
         return boxes, 0.0
@@ -446,7 +444,18 @@ def relax_boxes(boxes: np.ndarray, p0: np.ndarray) -> tuple[np.ndarray, float]:
     out[1:, 2:] += above
     if p0.ndim == 1:
         return out, float(np.hypot(*(below + above)))
-    return out, float(np.max(np.hypot(*(below_p + above_p).T)))
+    return out, _excursion(below_p, above_p)
+
+
+def _beyond(box: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How far each point of ``pts`` (P, 2) [m] lies below the low sides and above the high
+    sides of ``box`` (4,) [m]: two (P, 2) arrays, 0 where inside."""
+    return np.maximum(box[:2] - pts, 0.0), np.maximum(pts - box[2:], 0.0)
+
+
+def _excursion(below: np.ndarray, above: np.ndarray) -> float:
+    """[m] the largest distance of a point outside its box, from :func:`_beyond`'s arrays."""
+    return float(np.max(np.hypot(*(below + above).T)))
 
 
 def tighten_relax(boxes: np.ndarray, p0: np.ndarray, delta: float, follow: bool = False) -> tuple[np.ndarray, float]:
@@ -478,15 +487,8 @@ def tighten_relax(boxes: np.ndarray, p0: np.ndarray, delta: float, follow: bool 
     """
     boxes = np.asarray(boxes, dtype=float)
     pts = np.asarray(p0, dtype=float).reshape(-1, 2)
-    below_s = np.maximum(boxes[0, :2] - pts, 0.0)
-    above_s = np.maximum(pts - boxes[0, 2:], 0.0)
-    excursion = float(np.max(np.hypot(*(below_s + above_s).T)))
-    t = shrink_box(boxes, delta) if delta > 0 else boxes.copy()
-    below = np.maximum(t[0, :2] - pts, 0.0).max(axis=0)
-    above = np.maximum(pts - t[0, 2:], 0.0).max(axis=0)
-    out = t.copy()
-    out[1:, :2] -= below
-    out[1:, 2:] += above
+    excursion = _excursion(*_beyond(boxes[0], pts))
+    out, _ = relax_boxes(shrink_box(boxes, delta) if delta > 0 else boxes.copy(), pts)
     if not follow:
         out[1:, :2] = np.maximum(out[1:, :2], boxes[1:, :2])
         out[1:, 2:] = np.minimum(out[1:, 2:], boxes[1:, 2:])
