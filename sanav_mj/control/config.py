@@ -22,6 +22,16 @@ from sanav_mj.control.solver import SolverSettings
 from sanav_mj.scene import RobotParams
 
 
+def _metres(name: str, v, lo: float, hi: float = math.inf, closed: bool = False) -> None:
+    """Raise ValueError naming ``MPCConfig.<name>`` unless ``v`` is a finite number (not a
+    bool) of metres in ``[lo, hi)`` (``[lo, hi]`` when ``closed``)."""
+    if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and lo <= v \
+            and (v <= hi if closed else v < hi):
+        return
+    span = f">= {lo:g}" if math.isinf(hi) else f"in [{lo:g}, {hi:g}{']' if closed else ')'}"
+    raise ValueError(f"MPCConfig.{name} must be a finite number {span} m, got {v!r}")
+
+
 @dataclass(frozen=True)
 class TrackingConfig:
     """Settings of the tracking-MPC core, shared by SA-MPC and the penalty MPC.
@@ -346,38 +356,24 @@ class MPCConfig(TrackingConfig):
             raise ValueError(f"MPCConfig.footprint must be one of {FOOTPRINT_MODES}, got {self.footprint!r}")
         if isinstance(self.footprint_discs, bool) or not (isinstance(self.footprint_discs, int) and 2 <= self.footprint_discs <= 8):
             raise ValueError(f"MPCConfig.footprint_discs must be an integer in [2, 8], got {self.footprint_discs!r}")
-        fm = self.footprint_margin
-        if not (isinstance(fm, (int, float)) and math.isfinite(fm) and 0 <= fm < 1):
-            raise ValueError(f"MPCConfig.footprint_margin must be in [0, 1) m, got {fm!r}")
-        fp = self.footprint_narrow_penalty
-        if not (isinstance(fp, (int, float)) and math.isfinite(fp) and fp >= 0):
-            raise ValueError(f"MPCConfig.footprint_narrow_penalty must be a finite number >= 0 m, got {fp!r}")
+        _metres("footprint_margin", self.footprint_margin, 0.0, 1.0)
+        _metres("footprint_narrow_penalty", self.footprint_narrow_penalty, 0.0)
         if self.footprint_route not in FOOTPRINT_ROUTES:
             raise ValueError(f"MPCConfig.footprint_route must be one of {FOOTPRINT_ROUTES}, got {self.footprint_route!r}")
         fr = self.footprint_refine
         if isinstance(fr, bool) or not (isinstance(fr, int) and 1 <= fr <= 16):
             raise ValueError(f"MPCConfig.footprint_refine must be an integer in [1, 16], got {fr!r}")
-        fw = self.footprint_refine_width
-        if isinstance(fw, bool) or not (isinstance(fw, (int, float)) and math.isfinite(fw) and fw >= 0):
-            raise ValueError(f"MPCConfig.footprint_refine_width must be a finite number >= 0 m, got {fw!r}")
-        ft = self.footprint_grow_tighten
-        if isinstance(ft, bool) or not (isinstance(ft, (int, float)) and math.isfinite(ft) and 0 <= ft < 1):
-            raise ValueError(f"MPCConfig.footprint_grow_tighten must be a number in [0, 1) m, got {ft!r}")
+        _metres("footprint_refine_width", self.footprint_refine_width, 0.0)
+        _metres("footprint_grow_tighten", self.footprint_grow_tighten, 0.0, 1.0)
         if self.footprint_prediction is not None and not isinstance(self.footprint_prediction, PredictionDerating):
             raise ValueError(f"MPCConfig.footprint_prediction must be a PredictionDerating or None, "
                              f"got {self.footprint_prediction!r}")
-        fb = self.footprint_box_margin
-        if isinstance(fb, bool) or not (isinstance(fb, (int, float)) and math.isfinite(fb) and 0 <= fb < 1):
-            raise ValueError(f"MPCConfig.footprint_box_margin must be a number in [0, 1) m, got {fb!r}")
+        _metres("footprint_box_margin", self.footprint_box_margin, 0.0, 1.0)
         fo = self.footprint_open_speed
         if fo is not None and (isinstance(fo, bool) or not (isinstance(fo, (int, float)) and 0 < fo <= 1)):
             raise ValueError(f"MPCConfig.footprint_open_speed must be None or a fraction in (0, 1], got {fo!r}")
-        fr_ = self.footprint_open_room
-        if isinstance(fr_, bool) or not (isinstance(fr_, (int, float)) and math.isfinite(fr_) and 0 <= fr_ < 5):
-            raise ValueError(f"MPCConfig.footprint_open_room must be a number in [0, 5) m, got {fr_!r}")
-        fg = self.footprint_grow
-        if isinstance(fg, bool) or not (isinstance(fg, (int, float)) and math.isfinite(fg) and 0 <= fg <= 10):
-            raise ValueError(f"MPCConfig.footprint_grow must be a number in [0, 10] m, got {fg!r}")
+        _metres("footprint_open_room", self.footprint_open_room, 0.0, 5.0)
+        _metres("footprint_grow", self.footprint_grow, 0.0, 10.0, closed=True)
 
     @property
     def stage_box_margin(self) -> float:
