@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import mujoco
@@ -43,3 +44,16 @@ def make_prep(post: str = "cylinder") -> Prepared:
     ref = Reference(0.1, states, np.zeros((21, 2)), np.zeros(21, dtype=int))
     plan = Plan(True, "ok", np.array([1, 0, 2]), np.array([4.0, 0.0]), wp, wp, states[:, :2], ref)
     return Prepared(sc, SafeAreaMap(grid, leaves, np.zeros((0, 4), np.int64), areas, 1, "paper"), plan, {"total": 1.0})
+
+
+def cells_of_box(box, origin, h: float, shape: tuple[int, int]) -> tuple[slice, slice]:
+    """Row and column slices of the cells of a grid (``origin`` (2,) [m], cells of ``h`` [m],
+    ``shape`` (ny, nx)) whose interior meets the box (xmin, ymin, xmax, ymax) [m]; tolerance
+    1e-9 of a cell (box edges lie on cell boundaries up to float rounding of origin + k h)
+    (tests/eval/test_sensing_loop.py, tests/eval/test_sensing_discs.py)."""
+    ny, nx = shape
+    j0 = int(np.clip(math.floor((box[0] - origin[0]) / h + 1e-9), 0, nx))
+    i0 = int(np.clip(math.floor((box[1] - origin[1]) / h + 1e-9), 0, ny))
+    j1 = int(np.clip(math.ceil((box[2] - origin[0]) / h - 1e-9), 0, nx))
+    i1 = int(np.clip(math.ceil((box[3] - origin[1]) / h - 1e-9), 0, ny))
+    return slice(i0, i1), slice(j0, j1)

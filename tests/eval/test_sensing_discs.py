@@ -15,6 +15,7 @@ import math
 import numpy as np
 import pytest
 
+from _helpers import cells_of_box
 from sanav_mj.control.prediction import PredictionDerating
 from sanav_mj.eval.episode import (DEFAULT_MARGIN_M, footprint_spec, lidar_cell, lidar_controller, lidar_spec,
                                    prepare, run_scenario)
@@ -24,15 +25,6 @@ from sanav_mj.scene import load_scenario
 DISCS = footprint_spec("sa-mpc", "discs")
 
 
-def _cells_of(box, origin, h, shape):
-    """Cells whose interior meets the box (xmin, ymin, xmax, ymax) [m] (1e-9 of a cell: box edges
-    lie on cell boundaries up to the rounding of origin + k h)."""
-    ny, nx = shape
-    j0 = int(np.clip(math.floor((box[0] - origin[0]) / h + 1e-9), 0, nx))
-    i0 = int(np.clip(math.floor((box[1] - origin[1]) / h + 1e-9), 0, ny))
-    j1 = int(np.clip(math.ceil((box[2] - origin[0]) / h - 1e-9), 0, nx))
-    i1 = int(np.clip(math.ceil((box[3] - origin[1]) / h - 1e-9), 0, ny))
-    return slice(i0, i1), slice(j0, j1)
 
 
 def _wall_scan(x_wall: float, n: int = 721):
@@ -105,7 +97,7 @@ def _discs_checked_run(scenario: str, seed: int):
             i = np.floor((pts[:, 1] - g.origin[1]) / g.resolution).astype(int)
             first_plan.append(bool(safe[i, j].all()))
         for r in rec.corridor_rects:
-            cells = _cells_of(r, g.origin, g.resolution, g.shape)
+            cells = cells_of_box(r, g.origin, g.resolution, g.shape)
             assert safe[cells].all(), f"step {step}: corridor rectangle {r} holds unobserved or unsafe cells"
             assert not truth.occupied[cells].any(), f"step {step}: corridor rectangle {r} is not free in truth"
         if trace.status[step] in ("ok", "inexact") and "bs" in seen:
@@ -115,7 +107,7 @@ def _discs_checked_run(scenario: str, seed: int):
                 below = np.maximum(boxes[0, :2] - p0, 0.0)
                 above = np.maximum(p0 - boxes[0, 2:], 0.0)
                 for b in boxes[1:] + np.concatenate([below, -above]):
-                    cells = _cells_of(b, g.origin, g.resolution, g.shape)
+                    cells = cells_of_box(b, g.origin, g.resolution, g.shape)
                     assert safe[cells].all(), f"step {step}: disc {d} stage box {b} holds unobserved or unsafe cells"
                     assert not truth.occupied[cells].any(), f"step {step}: disc {d} stage box {b} not free in truth"
             checked.append(step)

@@ -8,27 +8,18 @@ observed safe in the sensed map at that step, and in free cells of the true infl
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from _helpers import cells_of_box
 from sanav_mj.control.sensing import SensingConfig, SensingSAMPC
 from sanav_mj.mapping.live_grid import OCCUPIED
 from sanav_mj.eval.episode import DEFAULT_MARGIN_M, lidar_controller, prepare, run_scenario
 from sanav_mj.scene import load_scenario
 
 
-def _cells_of(box: np.ndarray, origin: np.ndarray, h: float, shape: tuple[int, int]) -> tuple[slice, slice]:
-    """Cells whose interior meets the box (xmin, ymin, xmax, ymax) [m]; tolerance 1e-9 of a cell
-    (box edges lie on cell boundaries up to float rounding of origin + k h)."""
-    ny, nx = shape
-    j0 = int(np.clip(math.floor((box[0] - origin[0]) / h + 1e-9), 0, nx))
-    i0 = int(np.clip(math.floor((box[1] - origin[1]) / h + 1e-9), 0, ny))
-    j1 = int(np.clip(math.ceil((box[2] - origin[0]) / h - 1e-9), 0, nx))
-    i1 = int(np.clip(math.ceil((box[3] - origin[1]) / h - 1e-9), 0, ny))
-    return slice(i0, i1), slice(j0, j1)
 
 
 def _checked_run(scenario, seed: int = 0, yaw=None, background: bool = False, keep_rects: bool = False):
@@ -52,7 +43,7 @@ def _checked_run(scenario, seed: int = 0, yaw=None, background: bool = False, ke
         safe = ctrl.map.grid.safe()
         g = ctrl.map.grid
         for r in rec.corridor_rects:
-            cells = _cells_of(r, g.origin, g.resolution, g.shape)
+            cells = cells_of_box(r, g.origin, g.resolution, g.shape)
             assert safe[cells].all(), f"step {step}: corridor rectangle {r} holds unobserved or unsafe cells"
             assert not truth.occupied[cells].any(), f"step {step}: corridor rectangle {r} is not free in truth"
         if trace.status[step] in ("ok", "inexact") and ctrl.mpc is not None and ctrl.mpc.last is not None:
@@ -66,7 +57,7 @@ def _checked_run(scenario, seed: int = 0, yaw=None, background: bool = False, ke
             if below.any() or above.any():
                 relaxed.append(step)
             for b in boxes:
-                cells = _cells_of(b, g.origin, g.resolution, g.shape)
+                cells = cells_of_box(b, g.origin, g.resolution, g.shape)
                 assert safe[cells].all(), f"step {step}: stage box {b} holds unobserved or unsafe cells"
             checked.append(step)
 
