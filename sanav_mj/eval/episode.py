@@ -84,9 +84,10 @@ def planner_config(robot, spec: ControllerSpec = ControllerSpec()) -> Any:
     """Planner settings matched to the SA-MPC of ``spec``: the reference's speed, yaw-rate and
     acceleration caps are the planner's default fractions (0.8) of the MPC's resolved input
     and rate bounds (``spec.sa_mpc.limits(robot)``), not of the robot's, and its period is
-    the MPC's ``dt``. In ``"discs"`` mode ``MPCConfig.footprint_open_speed`` (a fraction of
-    the resolved ``v_max``) becomes the open-space speed of the reference. A reference faster than the MPC may drive (1.6 m/s against 1.43 m/s
-    for the MuJoCo robot) leaves the robot lagging behind it.
+    the MPC's ``dt``. A reference faster than the MPC may drive (1.6 m/s against 1.43 m/s
+    for the MuJoCo robot) leaves the robot lagging behind it. In ``"discs"`` mode
+    ``MPCConfig.footprint_open_speed`` (a fraction of the resolved ``v_max``) becomes the
+    reference's open-space speed (``PlannerConfig.open_speed_fraction``).
 
     Args:
         robot: the robot's nominal parameters.

@@ -360,7 +360,7 @@ def plan(
         crect = rects[route.corridor]
         sm = _smooth(route, crect, cfg)
         t_smooth = time.perf_counter()
-        timed = _time_parametrise_inside(sm, crect, robot, cfg, start_speed, getattr(areas, "free", None))
+        timed = _time_parametrise_inside(sm, crect, robot, cfg, start_speed, areas.free)
     except _NoPlan as no:
         return _fail(no.reason, no.detail, goal, info)
     t_time = time.perf_counter()
