@@ -154,7 +154,7 @@ class SensingConfig:
         narrow_width: [m] ``MPCConfig.footprint="discs"``: the corridor search adds
             ``footprint_narrow_penalty`` per edge through a place narrower than this (where
             the circumscribed disc does not fit: ``2 (R + margin - inflation)`` counted in
-            whole cells, :func:`sanav_mj.eval.episode.sensed_narrow_width`;
+            whole cells, :func:`sanav_mj.eval.lidar.sensed_narrow_width`;
             :class:`~sanav_mj.control.sensed_footprint.SensedFootprint`); unused in
             ``"disc"`` mode. >= 0.
         refresh: ``extend`` replans also once the corridor reaches the goal (the safe areas

@@ -17,8 +17,9 @@ import pytest
 
 from _helpers import cells_of_box
 from sanav_mj.control.prediction import PredictionDerating
-from sanav_mj.eval.episode import (DEFAULT_MARGIN_M, footprint_spec, lidar_cell, lidar_controller, lidar_spec,
-                                   prepare, run_scenario)
+from sanav_mj.eval.episode import run_scenario
+from sanav_mj.eval.lidar import lidar_cell, lidar_controller, lidar_spec
+from sanav_mj.eval.prepare import DEFAULT_MARGIN_M, footprint_spec, prepare
 from sanav_mj.footprint import robot_footprint
 from sanav_mj.scene import load_scenario
 
@@ -278,7 +279,7 @@ def test_discs_lidar_brakes_keeping_its_heading():
     (-0.01, 0.05, 0.0),
 ])
 def test_sensed_narrow_width_counts_whole_cells(lost, resolution, width):
-    from sanav_mj.eval.episode import sensed_narrow_width
+    from sanav_mj.eval.lidar import sensed_narrow_width
 
     assert sensed_narrow_width(lost, resolution) == pytest.approx(width, abs=4 * np.finfo(float).eps)
 
@@ -287,7 +288,7 @@ def test_discs_lidar_controller_narrow_width():
     sc = load_scenario("single_rect")
     from dataclasses import replace
 
-    from sanav_mj.eval.episode import sensed_narrow_width
+    from sanav_mj.eval.lidar import sensed_narrow_width
 
     # at margin 0.05 m: 0.330 + 0.05 - (0.2305 + 0.05) = 0.0985 m lost, strips of up to 4 cells narrow
     m05 = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_margin=0.05, footprint_refine=1))  # 0.05 m cells
@@ -322,7 +323,7 @@ def test_scan_matcher_reaches_as_far_in_metres_on_the_finer_sensed_cells():
     counts the turn on the spot at the start of single_rect seed 3 (an open room: few returns)
     gave only ``few_points`` matches, its scans were not added and the robot turned for 7 s
     before its first plan; with them the matches are used and it plans after 2.2 s."""
-    from sanav_mj.eval.episode import lidar_match
+    from sanav_mj.eval.lidar import lidar_match
     from sanav_mj.mapping.scan_match import ScanMatchConfig
 
     base = ScanMatchConfig()
