@@ -30,10 +30,13 @@ LIDAR_PREDICTION_STOP_M = 0.03
 
 def lidar_spec(cspec: ControllerSpec) -> ControllerSpec:
     """``cspec`` as a lidar run uses it: in ``"discs"`` mode with the stage boxes shrunk by
-    ``box_margin`` (not ``footprint_box_margin``), no open-space speed
-    (``footprint_open_speed`` None: not measured with the lidar), the prediction monitor's
-    box tightening off and its derating's ``stop`` at least :data:`LIDAR_PREDICTION_STOP_M`;
-    ``cspec`` itself otherwise.
+    ``box_margin`` (not ``footprint_box_margin``), the prediction monitor's box tightening
+    off and its derating's ``stop`` at least :data:`LIDAR_PREDICTION_STOP_M`; ``cspec``
+    itself otherwise. The open-space speed (``footprint_open_speed``) is kept: the lidar
+    run's plans read the open room from the cells safe in the sensed map at the plan
+    (unknown cells are never open; on 30 BARN-like worlds it kept 20/30 at the goal, 0
+    collisions, and raised the mean BARN metric of the runs reaching the goal in both from
+    0.346 to 0.374, 2026-11-25).
 
     ``footprint_refine`` and ``footprint_grow`` are kept, with the sensed map's meaning
     (:func:`lidar_controller`): the sensed grid's cells are ``resolution / footprint_refine``
@@ -59,7 +62,7 @@ def lidar_spec(cspec: ControllerSpec) -> ControllerSpec:
     pred = mpc.footprint_prediction
     if pred is not None and (pred.tighten or pred.stop < LIDAR_PREDICTION_STOP_M):
         pred = replace(pred, tighten=False, stop=max(pred.stop, LIDAR_PREDICTION_STOP_M))
-    used = replace(mpc, footprint_box_margin=mpc.box_margin, footprint_open_speed=None, footprint_prediction=pred)
+    used = replace(mpc, footprint_box_margin=mpc.box_margin, footprint_prediction=pred)
     return cspec if used == mpc else replace(cspec, sa_mpc=used)
 
 

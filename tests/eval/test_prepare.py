@@ -76,11 +76,11 @@ def test_planner_config_open_speed_in_discs_mode_only():
     assert cfg.open_speed_fraction * robot.v_max == pytest.approx(0.9 * 1.2, abs=1e-12)
     assert cfg.open_room == 0.2
     assert cfg.speed_fraction == planner_config(robot).speed_fraction
-    # the disc mode ignores it; a lidar run drops it (not measured with the lidar)
+    # the disc mode ignores it; a lidar run keeps it (its plans read the sensed safe cells)
     assert planner_config(robot, ControllerSpec(sa_mpc=replace(mpc, footprint="disc"))).open_speed_fraction is None
     lid = lidar_spec(ControllerSpec(sa_mpc=mpc))
-    assert lid.sa_mpc.footprint_open_speed is None
-    assert planner_config(robot, lid).open_speed_fraction is None
+    assert lid.sa_mpc.footprint_open_speed == 0.9
+    assert planner_config(robot, lid).open_speed_fraction == cfg.open_speed_fraction
     with pytest.raises(ValueError, match="footprint_open_speed"):
         MPCConfig(footprint_open_speed=1.5)
     with pytest.raises(ValueError, match="footprint_open_room"):

@@ -157,9 +157,9 @@ def test_discs_lidar_refuses_or_drops_known_map_only_settings():
     assert grown.sa_mpc.footprint_box_margin == 0.0 and used.footprint_box_margin == grown.sa_mpc.box_margin == 0.02
     # and the derating it was measured with (stop 0.03; the known map's 0.02 stalled complex/2)
     assert grown.sa_mpc.footprint_prediction.stop == 0.02 and used.footprint_prediction.stop == 0.03
-    # the open-space speed is a known-map setting (not measured with the lidar)
-    assert grown.sa_mpc.footprint_open_speed is not None and used.footprint_open_speed is None
-    assert used == replace(grown.sa_mpc, footprint_box_margin=0.02, footprint_open_speed=None,
+    # the open-space speed is kept: the lidar plans read it from the sensed safe cells
+    assert used.footprint_open_speed == grown.sa_mpc.footprint_open_speed == 1.0
+    assert used == replace(grown.sa_mpc, footprint_box_margin=0.02,
                            footprint_prediction=replace(grown.sa_mpc.footprint_prediction, tighten=False, stop=0.03))
     # a larger stop (a gentler derating) is kept; the tightening still goes
     own = replace(grown, sa_mpc=replace(grown.sa_mpc, footprint_prediction=PredictionDerating(stop=0.05)))
@@ -184,6 +184,32 @@ def _first_plan(grow: float):
     ctrl.step(Observation(t=0.0, pose=np.zeros(3), velocity=np.zeros(2), scan=scan))
     assert ctrl.mpc is not None and ctrl.records[0].replan == "initial"
     return ctrl
+
+
+def test_discs_lidar_plans_at_the_open_space_speed_only_where_the_sensed_map_is_open():
+    from dataclasses import replace
+
+    ctrl = _first_plan(1.0)  # open sensed space 3 m around the robot
+    lim = DISCS.sa_mpc.limits(load_scenario("single_rect").robot)
+    v = np.asarray(ctrl.mpc.plan.reference.inputs)[:, 0]
+    assert ctrl.planner.open_speed_fraction is not None
+    assert v.max() > 0.8 * lim.v_max + 0.05  # above the narrow-place cap: the open speed applied
+    assert v.max() <= lim.v_max + 1e-9
+    # without the option the same plan stays at 0.8 of the MPC's v_max
+    spec = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_grow=1.0, footprint_refine=1, footprint_open_speed=None))
+    from types import SimpleNamespace
+
+    from sanav_mj.control.base import Observation
+
+    other = lidar_controller(load_scenario("single_rect"), spec)
+    other.reset(np.zeros(3))
+    a = np.linspace(-math.pi, math.pi, 720, endpoint=False)
+    other.step(Observation(t=0.0, pose=np.zeros(3), velocity=np.zeros(2),
+                           scan=SimpleNamespace(ranges=np.full(720, 3.0), hit=np.zeros(720, bool), angles=a)))
+    v_slow = np.asarray(other.mpc.plan.reference.inputs)[:, 0]
+    assert v_slow.max() == pytest.approx(0.8 * lim.v_max, rel=1e-3)
+    # with the room of open space only inside the scanned disc, the reference is at rest at its end
+    assert v[-1] == pytest.approx(0.0, abs=1e-9)
 
 
 def _contains(outer, inner):
