@@ -460,9 +460,8 @@ class SensingSAMPC:
             self._start_worker()  # here, before the loop
         self.map = SensedMap(self.bounds, self.inflation, self.sensor_offset, self.config.map)
         self.localiser = ScanLocaliser(self.config, pose)
-        self._areas: SafeAreas | None = None
-        self._boxes = np.zeros((0, 4), dtype=np.int64)
-        self.plan_boxes = self._boxes
+        self._scanned = False  # a scan has been added: the map's safe areas are the current ones
+        self.plan_boxes = np.zeros((0, 4), dtype=np.int64)
         self._have_route = False  # route areas exist (after the first scan, when kept)
         self._route_dirty = True  # route or route grid changed since the route was last found clear
         self._corridor_rects = np.zeros((0, 4))
@@ -483,8 +482,10 @@ class SensingSAMPC:
 
     @property
     def areas(self) -> SafeAreas | None:
-        """The current safe areas (observed free space), None before the first scan."""
-        return self._areas
+        """The current safe areas (observed free space), None before the first scan. The
+        map's compact snapshot of them is taken when read (the step itself reads them only
+        to plan)."""
+        return self.map.areas_now() if self._scanned else None
 
     @property
     def estimate(self) -> np.ndarray:
@@ -527,18 +528,17 @@ class SensingSAMPC:
             t0 = time.perf_counter()
             changed = False
             if self.mpc is None or not self._own_safe(pose):
-                fp = self._clear_body(pose)
+                fp = self._clear_body(pose)  # the safe snapshot too only when read (to plan)
                 changed, self._route_dirty = fp.changed, self._route_dirty or fp.route_changed
             k = self.config.beam_stride
             # the route areas are needed only to plan: their snapshot is taken in _compute
             if add_scan:
                 up = self.map.integrate(pose, obs.scan.ranges[::k], obs.scan.hit[::k], obs.scan.angles[::k],
-                                        route_snapshot=False)
+                                        route_snapshot=False, snapshot=False)
                 changed = up.changed or changed
                 self._route_dirty = self._route_dirty or up.route_changed
             map_ms = (time.perf_counter() - t0) * 1e3 + loc_ms
-            self._areas = self.map.areas_now()
-            self._boxes = self.map.boxes_now()
+            self._scanned = True
             self._have_route = self.map.route is not None
             self._grown = self._grown or changed
         self._since_plan += 1
@@ -608,12 +608,13 @@ class SensingSAMPC:
         areas changed, ``route_changed``: a route cell changed)."""
         fp = self.config.footprint
         if fp is None:
-            return self.map.clear_footprint(pose, self.robot.footprint_radius, route_snapshot=False)
+            return self.map.clear_footprint(pose, self.robot.footprint_radius, route_snapshot=False, snapshot=False)
         shrink = self.config.pose_bound[0] + fp.circumradius * self.config.pose_bound[1]
-        return self.map.clear_box(pose, (fp.xmin, fp.xmax, fp.ymin, fp.ymax), shrink, route_snapshot=False)
+        return self.map.clear_box(pose, (fp.xmin, fp.xmax, fp.ymin, fp.ymax), shrink, route_snapshot=False,
+                                  snapshot=False)
 
     def _replan_reason(self, changed: bool, pose: np.ndarray) -> str | None:
-        if self._areas is None or not np.all(np.isfinite(pose)):
+        if not self._scanned or not np.all(np.isfinite(pose)):
             return None
         if self.mpc is None or self.local_goal is None:
             # the first plan waits until the robot's own position is observed safe (or the
@@ -672,7 +673,8 @@ class SensingSAMPC:
             g = self.map.grid
             pts = np.vstack([pose[None, :2], self._predicted[1:, :2]])
             kept = kept_prefix(self._plain_rects, pts, g.blocked, g.origin, g.resolution)
-        return (pose.copy(), speed, reason, self._areas, self._boxes, self._have_route, self.mpc is not None, kept)
+        return (pose.copy(), speed, reason, self.map.areas_now(), self.map.boxes_now(), self._have_route,
+                self.mpc is not None, kept)
 
     def _compute(self, pose: np.ndarray, speed: float, reason: str, areas: SafeAreas, boxes: np.ndarray,
                  have_route: bool, moving: bool, kept: np.ndarray | None = None) -> _Planned | None:

@@ -117,6 +117,38 @@ def test_route_areas_on_demand_equal_the_per_scan_snapshot():
 BODY = (-0.25, 0.25, -0.215, 0.215)  # the packaged robot's footprint rectangle (deck) [m]
 
 
+def test_safe_areas_on_demand_equal_the_per_scan_snapshot():
+    """snapshot=False (scans and body clearing): no safe areas in the result, and
+    areas_now() / boxes_now() read later give exactly what a map taking the snapshot at
+    every update returned (boxes, rectangles, edges, weights, portals); the snapshot is
+    reused while nothing changed."""
+    room = (0.0, 0.0, 8.0, 4.0)
+    offset = (0.12, 0.0)
+    eager, lazy = SensedMap(room, 0.3, offset), SensedMap(room, 0.3, offset)
+    angles = np.linspace(-2.356, 2.356, 361)
+    boxes = [(4.0, 1.5, 4.4, 2.5), (2.5, 0.4, 2.7, 0.9)]
+    asked = 0
+    for k in range(12):
+        pose = (0.8 + 0.25 * k, 2.0 + 0.3 * math.cos(k), 0.3 * math.sin(k))
+        r, hit = _scan(pose, offset, angles, boxes, room)
+        if k % 4 == 1:
+            ce = eager.clear_box(pose, BODY, 0.05)
+            cl = lazy.clear_box(pose, BODY, 0.05, snapshot=False)
+            assert cl.boxes is None and cl.areas is None and cl.changed == ce.changed
+        ue = eager.integrate(pose, r, hit, angles)
+        ul = lazy.integrate(pose, r, hit, angles, snapshot=False)
+        assert ul.boxes is None and ul.areas is None and ul.changed == ue.changed
+        assert ul.n_safe_changed == ue.n_safe_changed
+        if k % 3 == 2:  # ask only now and then (as a controller does at replans)
+            asked += 1
+            a, b = lazy.areas_now(), lazy.boxes_now()
+            assert np.array_equal(b, ue.boxes) and np.array_equal(b, eager.boxes_now())
+            for name in ("rects", "edges", "weights", "portals"):
+                assert np.array_equal(getattr(a, name), getattr(ue.areas, name))
+            assert lazy.areas_now() is a  # nothing changed since: the same snapshot
+    assert asked == 4 and len(b) > 5
+
+
 def _inside_body(pts, pose, box, tol=1e-9):
     """Whether (P, 2) world points lie in the body rectangle ``box`` at ``pose``."""
     c, s = math.cos(pose[2]), math.sin(pose[2])
