@@ -234,6 +234,7 @@ class LikelihoodField:
         self._sy = np.zeros(self._S.size)
         self._n = np.zeros(self._S.size, dtype=np.int64)
         self._hit = np.zeros(self._S.size, dtype=bool)
+        self._mark = np.zeros(self._S.size, dtype=np.uint8)  # scratch of the compiled spreading (zeroed)
         r = int(radius_cells)
         di, dj = np.mgrid[-r:r + 1, -r:r + 1]
         keep = di * di + dj * dj <= r * r
@@ -242,16 +243,33 @@ class LikelihoodField:
         self._inv2s2 = 1.0 / (2.0 * sigma * sigma)
         self.count = 0
 
-    def add_points(self, pts) -> int:
+    def add_points(self, pts, use_kernel: bool = True) -> int:
         """Add return points: each cell's hit point is the mean of the returns that landed in it.
 
         Args:
             pts: (P, 2) [m] world positions of returns (points outside the grid are ignored).
+            use_kernel: False forces the NumPy reference for the sums, counts and new cells
+                (else the compiled loop of :func:`~sanav_mj.mapping.match_kernel.accumulate`
+                when available; the same results, bit for bit).
 
         Returns:
             The number of new hit cells.
         """
         p = np.asarray(pts, dtype=float).reshape(-1, 2)
+        new = match_kernel.accumulate(self, p) if use_kernel else None
+        if new is None:
+            new = self._accumulate(p)
+        if not new.size:
+            return 0
+        if not (use_kernel and match_kernel.spread(self, new)):
+            self._spread_values(new)
+        self.count += int(new.size)
+        return int(new.size)
+
+    def _accumulate(self, p: np.ndarray) -> np.ndarray:
+        """NumPy reference of :func:`~sanav_mj.mapping.match_kernel.accumulate`: sums, counts
+        and hit points of the cells the (P, 2) [m] points ``p`` land in; returns the padded
+        flat indices of the cells hit for the first time (sorted), now marked hit."""
         ny, nx = self.shape
         h = self.resolution
         j = np.floor((p[:, 0] - self.origin[0]) / h).astype(np.int64)
@@ -260,7 +278,7 @@ class LikelihoodField:
         flat = (i[inside] + self.pad) * self._pw + (j[inside] + self.pad)
         p = p[inside]
         if not flat.size:
-            return 0
+            return np.zeros(0, np.int64)
         np.add.at(self._sx, flat, p[:, 0])
         np.add.at(self._sy, flat, p[:, 1])
         np.add.at(self._n, flat, 1)
@@ -268,9 +286,14 @@ class LikelihoodField:
         self._px[cells] = self._sx[cells] / self._n[cells]
         self._py[cells] = self._sy[cells] / self._n[cells]
         new = cells[~self._hit[cells]]
-        if not new.size:
-            return 0
         self._hit[new] = True
+        return new
+
+    def _spread_values(self, new: np.ndarray) -> None:
+        """Spread the hit points of the ``new`` (K,) hit cells (padded flat indices, sorted)
+        over the cells within reach (the field ``S`` and ``values``); NumPy reference of
+        :func:`~sanav_mj.mapping.match_kernel.spread`."""
+        h = self.resolution
         i, j = np.divmod(new, self._pw)
         ki, kj = self._kij
         ci = (i[:, None] + ki[None, :]).ravel()  # padded rows / columns of the cells around
@@ -283,8 +306,6 @@ class LikelihoodField:
         np.add.at(self._S, idx, np.exp(-d2 * self._inv2s2))
         u = np.unique(idx)
         self.values.reshape(-1)[u] = 1.0 - np.exp(-self._S[u])
-        self.count += int(new.size)
-        return int(new.size)
 
     def _cell(self, pts: np.ndarray) -> np.ndarray:
         """Padded flat cell index of (..., 2) [m] points (clamped to stay ``radius`` inside the
