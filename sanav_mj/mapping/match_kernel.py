@@ -13,7 +13,9 @@ The likelihood field's update per scan (:meth:`LikelihoodField.add_points`: the 
 cells, the per-cell sums and counts in ``np.add.at`` order, the new hit cells, and the
 spreading of new hit points over the cells around them) is compiled the same way
 (:func:`accumulate`, :func:`spread`); the exponentials stay NumPy's, so the field is the
-same bit for bit.
+same bit for bit. So is the element-wise part of
+:func:`~sanav_mj.mapping.scan_match.scan_points` (:func:`scan_surface`; the beam angles'
+cosines and sines from NumPy, reused while a lidar's angles repeat).
 
 Without a C compiler, when compiling fails, or with ``SANAV_MJ_NO_CKERNEL=1``, the NumPy
 code of :mod:`~sanav_mj.mapping.scan_match` runs instead: it is the reference
@@ -29,7 +31,7 @@ import numpy as np
 from sanav_mj.mapping.beam_kernel import NO_KERNEL_ENV, address, buffer_address
 from sanav_mj.native import kernel_loader
 
-__all__ = ["accumulate", "correspond", "kernel_available", "pair_rows", "spread"]
+__all__ = ["accumulate", "correspond", "kernel_available", "pair_rows", "scan_surface", "spread"]
 
 _SOURCE = r"""
 #include <math.h>
@@ -182,6 +184,35 @@ int64_t sanav_field_add(int64_t M, const int64_t *idx, const double *w, double *
     for (int64_t k = 0; k < u; ++k) mark[uniq[k]] = 0;
     return u;
 }
+
+/* scan_points up to the pick: the returns in the base frame (px, py, B each) and the returns
+   with a surface normal (beam index, chord tx, ty and its length, to out_*); returns how many. */
+int64_t sanav_scan_surface(int64_t B, const double *r, const double *a, const uint8_t *hit, const double *ca,
+                           const double *sa, double off0, double off1, int64_t k, double max_gap, double *px,
+                           double *py, int64_t *out_idx, double *out_tx, double *out_ty, double *out_len)
+{
+    for (int64_t b = 0; b < B; ++b) {
+        int good = hit[b] && isfinite(r[b]) && isfinite(a[b]);
+        double rr = good ? r[b] : 0.0;
+        px[b] = off0 + rr * ca[b];
+        py[b] = off1 + rr * sa[b];
+    }
+    int64_t m = 0;
+    for (int64_t i = k; i < B - k; ++i) {
+        int g0 = hit[i] && isfinite(r[i]) && isfinite(a[i]);
+        int gp = hit[i + k] && isfinite(r[i + k]) && isfinite(a[i + k]);
+        int gm = hit[i - k] && isfinite(r[i - k]) && isfinite(a[i - k]);
+        double tx = px[i + k] - px[i - k];
+        double ty = py[i + k] - py[i - k];
+        double len = hypot(tx, ty);
+        double limit = max_gap + 3.0 * (g0 ? r[i] : 0.0) * fabs(a[i + k] - a[i - k]);
+        if (g0 && gp && gm && len <= limit && len > 0) {
+            out_idx[m] = i; out_tx[m] = tx; out_ty[m] = ty; out_len[m] = len;
+            ++m;
+        }
+    }
+    return m;
+}
 """
 
 _i64, _dbl, _ptr = ctypes.c_int64, ctypes.c_double, ctypes.c_void_p
@@ -194,6 +225,7 @@ _load = kernel_loader("match", _SOURCE, "the scan-match kernel", NO_KERNEL_ENV, 
     "sanav_field_accumulate": (_i64, [_i64, _ptr, _dbl, _dbl, _dbl, _i64, _i64, _i64, _i64] + [_ptr] * 8),
     "sanav_field_around": (None, [_i64, _ptr, _i64, _ptr, _ptr, _dbl, _dbl, _dbl, _i64, _i64, _ptr, _ptr, _ptr, _ptr]),
     "sanav_field_add": (_i64, [_i64, _ptr, _ptr, _ptr, _ptr, _ptr]),
+    "sanav_scan_surface": (_i64, [_i64] + [_ptr] * 5 + [_dbl, _dbl, _i64, _dbl] + [_ptr] * 6),
 })
 
 
@@ -322,3 +354,53 @@ def spread(field, new: np.ndarray) -> bool:
     u = uniq[:u]
     field.values.reshape(-1)[u] = 1.0 - np.exp(-field._S[u])
     return True
+
+
+#: (angles, cos, sin) of the last scan: a lidar's beam angles are the same every scan
+_last_trig: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+
+def _trig(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """NumPy's cosines and sines of the angles ``a`` (B,), reused while the angles are the
+    same values as the last call's (the same inputs give the same results)."""
+    global _last_trig
+    last = _last_trig
+    if last is not None and last[0].shape == a.shape and np.array_equal(last[0], a):
+        return last[1], last[2]
+    ca, sa = np.cos(a), np.sin(a)
+    _last_trig = (a.copy(), ca, sa)
+    return ca, sa
+
+
+def scan_surface(r: np.ndarray, a: np.ndarray, hit: np.ndarray, off: np.ndarray, k: int, max_gap: float
+                 ) -> tuple | None:
+    """The element-wise part of :func:`~sanav_mj.mapping.scan_match.scan_points` compiled
+    (cosines and sines of the beam angles from NumPy, the rest with the same operations in
+    the same order, ``hypot`` from the C library as NumPy's), or None when the kernel is not
+    available.
+
+    Args:
+        r, a: (B,) float64 ranges [m] and beam angles [rad]; hit: (B,) bool; off: (2,) [m]
+            sensor offset; k: stencil half width [beams]; max_gap [m].
+
+    Returns:
+        px, py (B,) [m] the returns in the base frame (0 range where not a good return);
+        idx (M,) int64 the beams with a surface normal, tx, ty (M,) [m] their chords and
+        length (M,) [m] the chords' lengths.
+    """
+    lib = _load()
+    if lib is None:
+        return None
+    r = np.ascontiguousarray(r, dtype=np.float64)
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    h = np.ascontiguousarray(hit, dtype=bool)
+    B = len(r)
+    ca, sa = _trig(a)
+    px, py = np.empty(B), np.empty(B)
+    m = max(B - 2 * k, 0)
+    idx = np.empty(m, dtype=np.int64)
+    tx, ty, ln = np.empty(m), np.empty(m), np.empty(m)
+    n = lib.sanav_scan_surface(B, address(r), address(a), address(h), address(ca), address(sa), float(off[0]),
+                               float(off[1]), int(k), float(max_gap), address(px), address(py), address(idx),
+                               address(tx), address(ty), address(ln)) if B else 0
+    return px, py, idx[:n], tx[:n], ty[:n], ln[:n]

@@ -154,7 +154,7 @@ class MatchResult:
 
 
 def scan_points(ranges, hit, angles, sensor_offset=(0.0, 0.0), max_points: int | None = None,
-                stencil: int = 3, max_gap: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+                stencil: int = 3, max_gap: float = 0.3, use_kernel: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """The return points of a scan in the robot base frame, with the scan's own surface normals.
 
     A return's normal is perpendicular to the chord between the returns ``stencil`` beams
@@ -170,25 +170,35 @@ def scan_points(ranges, hit, angles, sensor_offset=(0.0, 0.0), max_points: int |
         max_points: keep at most this many, evenly spread over the returns (None: all).
         stencil: [beams] half width of the normal's chord, >= 1.
         max_gap: [m] chord allowance beyond ``3 r dphi``, > 0.
+        use_kernel: False forces the NumPy reference (else the compiled loop of
+            :func:`~sanav_mj.mapping.match_kernel.scan_surface` when available and the
+            arrays have the same length; the same results, bit for bit).
 
     Returns:
         points: (P, 2) [m] x forward, y left; normals: (P, 2) unit vectors.
     """
     r = np.asarray(ranges, dtype=float)
     a = np.asarray(angles, dtype=float)
-    good = np.asarray(hit, dtype=bool) & np.isfinite(r) & np.isfinite(a)
     off = np.asarray(sensor_offset, dtype=float).reshape(2)
-    px = off[0] + np.where(good, r, 0.0) * np.cos(a)
-    py = off[1] + np.where(good, r, 0.0) * np.sin(a)
     k = int(stencil)
-    n = len(r)
-    idx = np.arange(k, n - k)
-    tx = px[idx + k] - px[idx - k]
-    ty = py[idx + k] - py[idx - k]
-    length = np.hypot(tx, ty)
-    limit = max_gap + 3.0 * np.where(good[idx], r[idx], 0.0) * np.abs(a[idx + k] - a[idx - k])
-    ok = good[idx] & good[idx + k] & good[idx - k] & (length <= limit) & (length > 0)
-    idx, tx, ty, length = idx[ok], tx[ok], ty[ok], length[ok]
+    hit = np.asarray(hit, dtype=bool)
+    fast = None
+    if use_kernel and r.ndim == a.ndim == hit.ndim == 1 and len(r) == len(a) == len(hit):
+        fast = match_kernel.scan_surface(r, a, hit, off, k, float(max_gap))
+    if fast is not None:
+        px, py, idx, tx, ty, length = fast
+    else:
+        good = hit & np.isfinite(r) & np.isfinite(a)
+        px = off[0] + np.where(good, r, 0.0) * np.cos(a)
+        py = off[1] + np.where(good, r, 0.0) * np.sin(a)
+        n = len(r)
+        idx = np.arange(k, n - k)
+        tx = px[idx + k] - px[idx - k]
+        ty = py[idx + k] - py[idx - k]
+        length = np.hypot(tx, ty)
+        limit = max_gap + 3.0 * np.where(good[idx], r[idx], 0.0) * np.abs(a[idx + k] - a[idx - k])
+        ok = good[idx] & good[idx + k] & good[idx - k] & (length <= limit) & (length > 0)
+        idx, tx, ty, length = idx[ok], tx[ok], ty[ok], length[ok]
     if max_points is not None and len(idx) > max_points:
         pick = np.linspace(0, len(idx) - 1, max_points).round().astype(np.int64)
         idx, tx, ty, length = idx[pick], tx[pick], ty[pick], length[pick]
