@@ -640,8 +640,19 @@ class SensingSAMPC:
         return bool(self.map.grid.safe_at(self._cells(self.body.own_points(pose))).all())
 
     def _cells(self, pts: np.ndarray) -> np.ndarray:
+        """(P,) int64 flat indices of the cells of the points (P, 2) [m], clamped to the grid."""
         g = self.map.grid
         ny, nx = g.shape
+        if len(pts) <= 4:
+            # a few points (the robot's own): the same arithmetic on Python floats (IEEE
+            # doubles, as NumPy's), without a dozen array calls
+            ox, oy = float(g.origin[0]), float(g.origin[1])
+            h = float(g.resolution)
+            flat = pts.ravel().tolist()
+            if all(abs(v) < 1e15 for v in flat):  # finite and far inside int64 after floor
+                return np.array([min(max(math.floor((y - oy) / h), 0), ny - 1) * nx
+                                 + min(max(math.floor((x - ox) / h), 0), nx - 1)
+                                 for x, y in zip(flat[0::2], flat[1::2])], dtype=np.int64)
         j = np.clip(np.floor((pts[:, 0] - g.origin[0]) / g.resolution).astype(np.int64), 0, nx - 1)
         i = np.clip(np.floor((pts[:, 1] - g.origin[1]) / g.resolution).astype(np.int64), 0, ny - 1)
         return i * nx + j
@@ -653,14 +664,13 @@ class SensingSAMPC:
         g = self.map.grid
         ny, nx = g.shape
         e = 1e-6 * g.resolution
-        # the cells of the four points shifted by (+-e, +-e): column and row once per sign
-        # (the same arithmetic as _cells on each shifted point), one lookup for all four
-        j = [np.clip(np.floor((pts[:, 0] + dx - g.origin[0]) / g.resolution).astype(np.int64), 0, nx - 1)
-             for dx in (-e, e)]
-        i = [np.clip(np.floor((pts[:, 1] + dy - g.origin[1]) / g.resolution).astype(np.int64), 0, ny - 1)
-             for dy in (-e, e)]
-        cells = np.concatenate([i[0] * nx + j[0], i[1] * nx + j[0], i[0] * nx + j[1], i[1] * nx + j[1]])
-        return ok_at(cells).reshape(4, len(pts)).any(axis=0)
+        # the cells of the four points shifted by (+-e, +-e): column and row for both signs
+        # at once (the same arithmetic as _cells on each shifted point), one lookup for all four
+        shift = np.array([[-e], [e]])
+        j = np.clip(np.floor((pts[:, 0] + shift - g.origin[0]) / g.resolution).astype(np.int64), 0, nx - 1)
+        i = np.clip(np.floor((pts[:, 1] + shift - g.origin[1]) / g.resolution).astype(np.int64), 0, ny - 1)
+        cells = i[:, None, :] * nx + j[None, :, :]  # (2, 2, P): (row sign, column sign, point)
+        return ok_at(cells.ravel()).reshape(4, len(pts)).any(axis=0)
 
     def _route_clear(self) -> bool:
         return bool(self._in_ok_cells(self.route, self.map.grid.route_safe_at).all())

@@ -101,3 +101,22 @@ def test_closed_square_cell_test_matches_the_four_shifted_points():
         got = ctrl._in_ok_cells(pts, ok_at)
         assert np.array_equal(got, ref)
         assert ref.any() and not ref.all()
+
+
+def test_cells_of_a_few_points_equal_the_array_path():
+    """_cells on up to four points (the robot's own: Python floats) gives the same cells as
+    its NumPy path on many points: random points, points on cell edges and just beside them,
+    and points outside the grid (clamped)."""
+    _, ctrl = _ctrl()
+    g = ctrl.map.grid
+    rng = np.random.default_rng(7)
+    filler = np.zeros((5, 2))  # more than four points: the array path
+    for k in range(3000):
+        p = int(rng.integers(1, 5))
+        pts = rng.uniform((-3.0, -4.0), (9.0, 4.0), (p, 2))
+        if k % 3 == 0:  # on cell edges (origin + n h), or one rounding step beside them
+            pts = g.origin + np.round((pts - g.origin) / g.resolution) * g.resolution
+            pts = pts + rng.choice([0.0, 1e-15, -1e-15], (p, 2))
+        fast = ctrl._cells(pts)
+        ref = ctrl._cells(np.vstack([pts, filler]))[:p]
+        assert fast.dtype == np.int64 and np.array_equal(fast, ref)
