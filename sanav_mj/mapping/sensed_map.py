@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sanav_mj.mapping import rect_kernel
 from sanav_mj.mapping.incremental import IncrementalSafeAreas
 from sanav_mj.mapping.live_grid import LiveGrid, LiveGridConfig
 from sanav_mj.mapping.safe_areas import SafeAreas
@@ -323,12 +324,15 @@ class SensedMap:
         """(R, 4) int64 cell boxes of the current safe areas (as :meth:`areas_now`)."""
         return self._safe_now()[0]
 
-    def rects_still_safe(self, rects) -> np.ndarray:
+    def rects_still_safe(self, rects, use_kernel: bool = True) -> np.ndarray:
         """Whether each world rectangle still lies entirely in safe cells.
 
         Args:
             rects: (K, 4) [m] ``xmin, ymin, xmax, ymax`` (e.g. the rectangles of a corridor
                 planned earlier; safe rectangles lie on cell boundaries).
+
+            use_kernel: False forces the Python loop (else the compiled test of
+                :mod:`~sanav_mj.mapping.rect_kernel` when available; the same answers).
 
         Returns:
             (K,) bool; False where a cell inside the rectangle is no longer safe (replan).
@@ -336,6 +340,10 @@ class SensedMap:
         r = np.asarray(rects, dtype=float).reshape(-1, 4)
         g = self.grid
         h = g.resolution
+        if use_kernel:
+            fast = rect_kernel.rects_free(r, g.blocked, g.origin, h)
+            if fast is not None:
+                return fast
         ny, nx = g.shape
         j0 = np.clip(np.floor((r[:, 0] - g.origin[0]) / h + 1e-9), 0, nx).astype(int)
         i0 = np.clip(np.floor((r[:, 1] - g.origin[1]) / h + 1e-9), 0, ny).astype(int)

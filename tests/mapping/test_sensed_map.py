@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from sanav_mj.mapping.safe_areas import build_safe_areas
 from sanav_mj.mapping.sensed_map import SensedMap, SensedMapConfig
@@ -209,3 +210,35 @@ def test_clear_box_frees_the_body_cells_once_but_never_a_cell_that_held_a_return
     assert (st[others] == 1).all()  # the others are free after one observation
     expected = np.maximum(before[others] + np.float32(g.config.l_free), np.float32(g.config.l_min))
     assert np.array_equal(g.log_odds.reshape(-1)[others], expected)  # one l_free each
+
+
+def test_compiled_rect_test_equals_the_python_loop():
+    """rects_still_safe with the compiled test (sanav_mj.mapping.rect_kernel) answers as the
+    Python loop: the safe areas' own rectangles (all safe), random rectangles (partly
+    unsafe), rectangles off the grid, empty and inverted ones, and all of them moved to cell
+    edges or 1e-12 m beside them, at several map states."""
+    from sanav_mj.mapping import rect_kernel
+
+    if not rect_kernel.kernel_available():
+        pytest.skip("no C compiler: only the Python loop exists")
+    room = (0.0, 0.0, 8.0, 4.0)
+    offset = (0.12, 0.0)
+    m = SensedMap(room, 0.3, offset)
+    angles = np.linspace(-2.356, 2.356, 361)
+    boxes = [(4.0, 1.5, 4.4, 2.5), (2.5, 0.4, 2.7, 0.9)]
+    rng = np.random.default_rng(3)
+    seen = [0, 0]
+    for k in range(8):
+        pose = (0.8 + 0.4 * k, 2.0 + 0.3 * math.cos(k), 0.3 * math.sin(k))
+        r, hit = _scan(pose, offset, angles, boxes, room)
+        m.integrate(pose, r, hit, angles)
+        lo = rng.uniform(-1.0, 8.5, (300, 2))
+        rects = np.concatenate([m.areas_now().rects, np.column_stack([lo, lo + rng.uniform(-0.2, 2.0, (300, 2))]),
+                                [[-3.0, -3.0, -1.0, -1.0], [1.0, 1.0, 1.0, 2.0], [9.0, 1.0, 12.0, 2.0]]])
+        rects = np.concatenate([rects, np.tile(m.grid.origin, 2) + np.round(  # on cell edges, or just beside
+            (rects - np.tile(m.grid.origin, 2)) / 0.05) * 0.05 + rng.choice([0.0, 1e-12, -1e-12], rects.shape)])
+        ref = m.rects_still_safe(rects, use_kernel=False)
+        assert np.array_equal(m.rects_still_safe(rects), ref)
+        seen[0] += ref.sum()
+        seen[1] += (~ref).sum()
+    assert min(seen) > 100
