@@ -370,6 +370,40 @@ class _Worker:
         jobs.put(None)
 
 
+def grid_cells(g, pts: np.ndarray) -> np.ndarray:
+    """(P,) int64 flat indices ``i * nx + j`` of the cells of the points ``pts`` (P, 2) [m]
+    of the grid ``g`` (``shape``, ``origin``, ``resolution``), clamped to the grid."""
+    ny, nx = g.shape
+    if len(pts) <= 4:
+        # a few points (the robot's own): the same arithmetic on Python floats (IEEE
+        # doubles, as NumPy's), without a dozen array calls
+        ox, oy = float(g.origin[0]), float(g.origin[1])
+        h = float(g.resolution)
+        flat = pts.ravel().tolist()
+        if all(abs(v) < 1e15 for v in flat):  # finite and far inside int64 after floor
+            return np.array([min(max(math.floor((y - oy) / h), 0), ny - 1) * nx
+                             + min(max(math.floor((x - ox) / h), 0), nx - 1)
+                             for x, y in zip(flat[0::2], flat[1::2])], dtype=np.int64)
+    j = np.clip(np.floor((pts[:, 0] - g.origin[0]) / g.resolution).astype(np.int64), 0, nx - 1)
+    i = np.clip(np.floor((pts[:, 1] - g.origin[1]) / g.resolution).astype(np.int64), 0, ny - 1)
+    return i * nx + j
+
+
+def in_ok_cells(g, pts: np.ndarray, ok_at) -> np.ndarray:
+    """(P,) bool: each point (P, 2) [m] lies in a cell of the grid ``g`` that ``ok_at`` (flat
+    cell indices -> bool) accepts, cells taken as closed squares (a point on a cell edge,
+    where the planner's closed rectangles put samples, counts for either side)."""
+    ny, nx = g.shape
+    e = 1e-6 * g.resolution
+    # the cells of the four points shifted by (+-e, +-e): column and row for both signs
+    # at once (the same arithmetic as grid_cells on each shifted point), one lookup for all four
+    shift = np.array([[-e], [e]])
+    j = np.clip(np.floor((pts[:, 0] + shift - g.origin[0]) / g.resolution).astype(np.int64), 0, nx - 1)
+    i = np.clip(np.floor((pts[:, 1] + shift - g.origin[1]) / g.resolution).astype(np.int64), 0, ny - 1)
+    cells = i[:, None, :] * nx + j[None, :, :]  # (2, 2, P): (row sign, column sign, point)
+    return ok_at(cells.ravel()).reshape(4, len(pts)).any(axis=0)
+
+
 class SensingSAMPC:
     """SA-MPC driving on the map its lidar builds (the Controller protocol).
 
@@ -637,43 +671,10 @@ class SensingSAMPC:
     def _own_safe(self, pose: np.ndarray) -> bool:
         """Whether the robot's own points (its position; ``"discs"``: every disc centre) at
         ``pose`` (3,) [m, m, rad] lie in safe cells."""
-        return bool(self.map.grid.safe_at(self._cells(self.body.own_points(pose))).all())
-
-    def _cells(self, pts: np.ndarray) -> np.ndarray:
-        """(P,) int64 flat indices of the cells of the points (P, 2) [m], clamped to the grid."""
-        g = self.map.grid
-        ny, nx = g.shape
-        if len(pts) <= 4:
-            # a few points (the robot's own): the same arithmetic on Python floats (IEEE
-            # doubles, as NumPy's), without a dozen array calls
-            ox, oy = float(g.origin[0]), float(g.origin[1])
-            h = float(g.resolution)
-            flat = pts.ravel().tolist()
-            if all(abs(v) < 1e15 for v in flat):  # finite and far inside int64 after floor
-                return np.array([min(max(math.floor((y - oy) / h), 0), ny - 1) * nx
-                                 + min(max(math.floor((x - ox) / h), 0), nx - 1)
-                                 for x, y in zip(flat[0::2], flat[1::2])], dtype=np.int64)
-        j = np.clip(np.floor((pts[:, 0] - g.origin[0]) / g.resolution).astype(np.int64), 0, nx - 1)
-        i = np.clip(np.floor((pts[:, 1] - g.origin[1]) / g.resolution).astype(np.int64), 0, ny - 1)
-        return i * nx + j
-
-    def _in_ok_cells(self, pts: np.ndarray, ok_at) -> np.ndarray:
-        """(P,) bool: each point (P, 2) [m] lies in a cell that ``ok_at`` accepts, cells taken
-        as closed squares (a point on a cell edge, where the planner's closed rectangles put
-        samples, counts for either side)."""
-        g = self.map.grid
-        ny, nx = g.shape
-        e = 1e-6 * g.resolution
-        # the cells of the four points shifted by (+-e, +-e): column and row for both signs
-        # at once (the same arithmetic as _cells on each shifted point), one lookup for all four
-        shift = np.array([[-e], [e]])
-        j = np.clip(np.floor((pts[:, 0] + shift - g.origin[0]) / g.resolution).astype(np.int64), 0, nx - 1)
-        i = np.clip(np.floor((pts[:, 1] + shift - g.origin[1]) / g.resolution).astype(np.int64), 0, ny - 1)
-        cells = i[:, None, :] * nx + j[None, :, :]  # (2, 2, P): (row sign, column sign, point)
-        return ok_at(cells.ravel()).reshape(4, len(pts)).any(axis=0)
+        return bool(self.map.grid.safe_at(grid_cells(self.map.grid, self.body.own_points(pose))).all())
 
     def _route_clear(self) -> bool:
-        return bool(self._in_ok_cells(self.route, self.map.grid.route_safe_at).all())
+        return bool(in_ok_cells(self.map.grid, self.route, self.map.grid.route_safe_at).all())
 
     def _plan_inputs(self, pose: np.ndarray, speed: float, reason: str) -> tuple:
         """Everything :meth:`_compute` reads that the control thread changes later (the map
@@ -743,7 +744,7 @@ class SensingSAMPC:
         the whole route is safe); None when the route does not start in safe cells."""
         if route is None:
             return self.goal.copy()
-        safe = self._in_ok_cells(route, self.map.grid.safe_at)
+        safe = in_ok_cells(self.map.grid, route, self.map.grid.safe_at)
         if safe.all():
             return self.goal.copy()
         first = int(np.argmax(safe))
