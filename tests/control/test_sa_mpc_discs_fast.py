@@ -1,0 +1,79 @@
+"""The ``"discs"`` SA-MPC step's vectorised stage assignment and relaxation against their
+per-disc references (:meth:`DiscCover.assign`, :meth:`DiscCover.relax`): bit-identical."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sanav_mj.control.disc_stages import DiscCover
+from sanav_mj.control.sa_mpc import SAMPC, MPCConfig, _assign_shared, _relax_all
+from sanav_mj.footprint import Footprint
+
+from mpc_cases import ROBOT, U_RECTS, U_WAYPOINTS, make_areas, make_plan
+
+FP = Footprint(-0.25, 0.25, -0.215, 0.215)
+
+
+@pytest.fixture(scope="module")
+def ctl() -> SAMPC:
+    areas = make_areas(U_RECTS)
+    plan = make_plan(areas, [0, 1, 2], U_WAYPOINTS)
+    return SAMPC(ROBOT, areas, plan, MPCConfig(footprint="discs", footprint_box_margin=0.0), footprint=FP)
+
+
+def _states(rng, ctl, n1):
+    """A random walk of n1 states (n1, 3) near the chain's boxes (some far outside)."""
+    box = ctl.chain.stay[rng.integers(len(ctl.chain))]
+    start = rng.uniform(box[:2] - 0.3, box[2:] + 0.3)
+    steps = rng.normal(0.0, rng.choice([0.02, 0.1, 0.4]), (n1, 2))
+    xy = start + np.cumsum(steps, axis=0)
+    yaw = rng.uniform(-np.pi, np.pi) + np.cumsum(rng.normal(0, 0.2, n1))
+    return np.column_stack((xy, yaw))
+
+
+def test_assignment_matches_the_per_disc_reference(ctl):
+    rng = np.random.default_rng(0)
+    n1, n_m = ctl.N + 1, len(ctl.chain)
+    for trial in range(400):
+        xs = _states(rng, ctl, n1)
+        s_prev = None if trial % 4 == 0 else np.sort(rng.integers(0, n_m, (3, n1)), axis=1)
+        tol = ctl._check_tol
+        ss_ref, plain_ref, pts_ref = ctl.discs.assign(ctl.chain, xs, s_prev, tol)
+        pts = ctl.discs.centres(xs)
+        ss, plain = _assign_shared(ctl.chain, ctl._both, pts, s_prev, tol)
+        assert np.array_equal(pts, pts_ref)
+        assert np.array_equal(ss, ss_ref)
+        assert plain.dtype == plain_ref.dtype and np.array_equal(plain, plain_ref)
+        assert np.all(np.isin(np.diff(ss, axis=1), (0, 1)))
+
+
+def test_assignment_covers_guesses_no_assignment_fits(ctl):
+    # far outside every box: assign_feasible finds nothing, the dynamic programme decides
+    xs = np.column_stack((np.linspace(-5, 5, ctl.N + 1), np.full(ctl.N + 1, 7.0), np.zeros(ctl.N + 1)))
+    ss_ref, plain_ref, _ = ctl.discs.assign(ctl.chain, xs, None, ctl._check_tol)
+    ss, plain = _assign_shared(ctl.chain, ctl._both, ctl.discs.centres(xs), None, ctl._check_tol)
+    assert np.array_equal(ss, ss_ref) and np.array_equal(plain, plain_ref)
+
+
+@pytest.mark.parametrize("tighten", [None, (0.0, False), (0.0, True), (0.012, False), (0.03, True), (0.05, False)])
+def test_relaxation_matches_the_per_disc_reference(ctl, tighten):
+    rng = np.random.default_rng(1)
+    n1, n_m = ctl.N + 1, len(ctl.chain)
+    moved = 0
+    for _ in range(300):
+        s = np.sort(rng.integers(0, n_m, (3, n1)), axis=1)
+        plain = np.array([ctl.chain.stay[si] for si in s])
+        box0 = plain[:, 0]
+        # stage-0 centres inside, on the edge of, or beyond their boxes
+        pts0 = rng.uniform(box0[:, :2] - 0.05, box0[:, 2:] + 0.05)
+        on_edge = rng.random(3) < 0.2
+        pts0[on_edge] = box0[on_edge, :2]
+        plain_copy = plain.copy()
+        bs_ref, e_ref = DiscCover.relax(plain, pts0, tighten)
+        bs, e = _relax_all(plain, pts0, tighten)
+        assert np.array_equal(plain, plain_copy)  # the input is not modified
+        assert np.array_equal(bs, bs_ref) and e == e_ref
+        assert np.array_equal(np.signbit(bs), np.signbit(bs_ref))
+        moved += e > 0
+    assert 0 < moved < 300  # both branches taken
