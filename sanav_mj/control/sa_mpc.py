@@ -153,6 +153,14 @@ def _shift_bounds(plain: np.ndarray, pts0: np.ndarray, follow: bool) -> tuple[np
     return DiscCover.bounds(plain)
 
 
+def _disc_margins(pts: np.ndarray, bs: np.ndarray) -> np.ndarray:
+    """:meth:`DiscCover.margins` from the disc centres ``pts`` (K, D, 2) [m] and the boxes
+    ``bs`` (D, K, 4) [m], vectorised over the discs (the same minima in the same order):
+    (K,) [m] the smallest slack of any centre in its own box."""
+    p = pts.transpose(1, 0, 2)
+    return np.concatenate((p - bs[..., :2], bs[..., 2:] - p), axis=2).min(axis=2).min(axis=0)
+
+
 def _assign_shared(chain: CorridorChain, both: np.ndarray, pts: np.ndarray, s_prev: np.ndarray | None,
                    tol: float) -> tuple[np.ndarray, np.ndarray]:
     """:meth:`DiscCover.assign` when every disc walks the same ``chain`` (not a pose route),
@@ -539,6 +547,7 @@ class SAMPC(TrackingMPC):
         super().reset(pose, u_prev=u_prev, opening_turn=opening_turn)
         self._s_prev: np.ndarray | None = None
         self._s_prev_d: np.ndarray | None = None
+        self._centres_of: tuple[np.ndarray, np.ndarray] | None = None
         if self.discs is not None:
             self._escape.reset()
         self.last: StepInfo | None = None
@@ -587,7 +596,11 @@ class SAMPC(TrackingMPC):
 
     def position_rows(self, xs: np.ndarray) -> np.ndarray:
         """The position rows of ``g`` for the rollout ``xs`` (N+1, 3): positions or disc centres of stages 1..N."""
-        return (xs[1:, :2] if self.discs is None else self.discs.centres(xs[1:])).ravel()
+        if self.discs is None:
+            return xs[1:, :2].ravel()
+        pts = self.discs.centres(xs)
+        self._centres_of = (xs, pts)  # the acceptance's rollout: describe() reads its centres
+        return pts[1:].ravel()
 
     def turn_allowed(self, x0: np.ndarray) -> bool:
         """``"disc"``: always; ``"discs"``: where the centres' sweep fits (:meth:`DiscCover.turn_allowed`)."""
@@ -611,9 +624,18 @@ class SAMPC(TrackingMPC):
         if self.discs is None:
             margins = np.concatenate(([box_slack(x0[None, :2], boxes[:1])[0]], box_slack(xs[1:, :2], boxes[1:])))
         else:
-            margins = self.discs.margins(np.vstack((x0[None], xs[1:])), context[3])
+            margins = _disc_margins(self._plan_centres(xs, x0), context[3])
         chain = self.chain if self.disc_chains is None else self.disc_chains[self.discs.centre]
         return stage_rect_ids(chain, self._rects, s, xs[:, :2]), margins
+
+    def _plan_centres(self, xs: np.ndarray, x0: np.ndarray) -> np.ndarray:
+        """(N+1, D, 2) [m] disc centres of ``x0`` (3,) and the states ``xs[1:]`` (N, 3): those
+        :meth:`position_rows` computed for this very ``xs`` when its first state is ``x0``
+        bit for bit (the acceptance's rollout from ``x0``), else computed."""
+        kept = self._centres_of
+        if kept is not None and kept[0] is xs and xs[0].tobytes() == np.asarray(x0, dtype=float).tobytes():
+            return kept[1]
+        return self.discs.centres(np.vstack((x0[None], xs[1:])))
 
     def turn_context(self, x0: np.ndarray, xs: np.ndarray):
         """Stage assignment and boxes of an opening-turn plan."""

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from sanav_mj.control.disc_stages import DiscCover
-from sanav_mj.control.sa_mpc import SAMPC, MPCConfig, _assign_shared, _relax_all
+from sanav_mj.control.sa_mpc import SAMPC, MPCConfig, _assign_shared, _disc_margins, _relax_all
+from sanav_mj.control.unicycle import rollout_np
 from sanav_mj.footprint import Footprint
 
 from mpc_cases import ROBOT, U_RECTS, U_WAYPOINTS, make_areas, make_plan
@@ -77,3 +78,30 @@ def test_relaxation_matches_the_per_disc_reference(ctl, tighten):
         assert np.array_equal(np.signbit(bs), np.signbit(bs_ref))
         moved += e > 0
     assert 0 < moved < 300  # both branches taken
+
+
+def test_margins_match_the_per_disc_reference(ctl):
+    rng = np.random.default_rng(2)
+    n1, n_m = ctl.N + 1, len(ctl.chain)
+    for _ in range(200):
+        xs = _states(rng, ctl, n1)
+        s = np.sort(rng.integers(0, n_m, (3, n1)), axis=1)
+        bs = np.array([ctl.chain.stay[si] for si in s])
+        ref = ctl.discs.margins(xs, bs)
+        assert np.array_equal(_disc_margins(ctl.discs.centres(xs), bs), ref)
+
+
+def test_describe_reuses_the_acceptance_centres_only_for_the_same_rollout(ctl):
+    rng = np.random.default_rng(4)
+    x0 = np.array([0.5, 0.5, 0.3])
+    xs = rollout_np(x0, rng.uniform(-0.5, 0.5, (ctl.N, 2)), ctl.dt)
+    ctl.position_rows(xs)  # what the acceptance test computes
+    ref = ctl.discs.centres(np.vstack((x0[None], xs[1:])))
+    assert ctl._plan_centres(xs, x0) is ctl._centres_of[1]
+    assert np.array_equal(ctl._plan_centres(xs, x0), ref)
+    # another rollout, or another first state: computed afresh, never the kept centres
+    other = xs.copy()
+    assert ctl._plan_centres(other, x0) is not ctl._centres_of[1]
+    x1 = x0 + np.array([0.01, 0.0, 0.0])
+    got = ctl._plan_centres(xs, x1)
+    assert np.array_equal(got, ctl.discs.centres(np.vstack((x1[None], xs[1:]))))
