@@ -28,11 +28,11 @@ from sanav_mj.control.stages import (
     CorridorChain,
     SafeAreaPenalty,
     _outside_sq,
-    assign_feasible,
     assign_stages,
     box_slack,
     chain_slack,
     exit_targets,
+    feasible_from_bits,
     first_candidates,
     relax_boxes,
     safe_area_params,
@@ -169,16 +169,26 @@ def _assign_shared(chain: CorridorChain, both: np.ndarray, pts: np.ndarray, s_pr
     ``chain.stay`` and ``chain.advance`` stacked (:func:`assign_stages`' table, built once per
     plan); ``s_prev`` (D, N+1) or None the previous assignments; ``tol`` [m] as in
     :func:`assign_stages`. The distances of all centres to all members come from one call;
-    each disc's assignment from :func:`assign_feasible` (the fast path of
-    :func:`assign_stages`), or from :func:`assign_stages` itself when no assignment fits."""
+    each disc's assignment from the bit sets of :func:`~sanav_mj.control.stages.assign_feasible`
+    (the fast path of :func:`assign_stages`; :func:`feasible_from_bits`), or from
+    :func:`assign_stages` itself when no assignment fits."""
     n1, n_d = pts.shape[:2]
     n_m = len(chain)
     d2 = _outside_sq(pts.transpose(1, 0, 2).reshape(-1, 2), both).reshape(n_d, n1, 2 * n_m)
     d2[d2 < tol * tol] = 0.0
     ss = np.empty((n_d, n1), dtype=int)
+    if n_m <= 62:  # assign_feasible's bit sets of all discs at once
+        weights = np.left_shift(np.int64(1), np.arange(n_m, dtype=np.int64))
+        zero = d2 == 0.0
+        stay, adv = (zero[..., :n_m] @ weights).tolist(), (zero[..., n_m:] @ weights).tolist()
     for d in range(n_d):
         cand = first_candidates(n_m, None if s_prev is None else s_prev[d])
-        s = assign_feasible(d2[d], n_m, cand, REANCHOR_M) if n_m <= 62 else None
+        s = None
+        if n_m <= 62:
+            mask = None
+            if cand is not None and np.min(d2[d, 0, :n_m][cand]) <= REANCHOR_M**2:
+                mask = int(cand.astype(np.int64) @ weights)
+            s = feasible_from_bits(stay[d], adv[d], mask)
         ss[d] = assign_stages(chain, pts[:, d], cand, tol=tol) if s is None else s
     plain = chain.stay[ss]
     adv = np.diff(ss, axis=1) > 0

@@ -8,6 +8,7 @@ import pytest
 
 from sanav_mj.control.disc_stages import DiscCover
 from sanav_mj.control.sa_mpc import SAMPC, MPCConfig, _assign_shared, _disc_margins, _relax_all
+from sanav_mj.control.stages import _outside_sq, assign_feasible, first_candidates
 from sanav_mj.control.unicycle import rollout_np
 from sanav_mj.footprint import Footprint
 
@@ -36,6 +37,7 @@ def _states(rng, ctl, n1):
 def test_assignment_matches_the_per_disc_reference(ctl):
     rng = np.random.default_rng(0)
     n1, n_m = ctl.N + 1, len(ctl.chain)
+    fits = 0
     for trial in range(400):
         xs = _states(rng, ctl, n1)
         s_prev = None if trial % 4 == 0 else np.sort(rng.integers(0, n_m, (3, n1)), axis=1)
@@ -47,6 +49,12 @@ def test_assignment_matches_the_per_disc_reference(ctl):
         assert np.array_equal(ss, ss_ref)
         assert plain.dtype == plain_ref.dtype and np.array_equal(plain, plain_ref)
         assert np.all(np.isin(np.diff(ss, axis=1), (0, 1)))
+        for d in range(3):  # which of assign_stages' two paths decided
+            d2 = _outside_sq(pts[:, d], ctl._both)
+            d2[d2 < tol * tol] = 0.0
+            cand = first_candidates(n_m, None if s_prev is None else s_prev[d])
+            fits += assign_feasible(d2, n_m, cand, 0.3) is not None
+    assert 0.1 * 1200 < fits < 0.9 * 1200  # both the bit sets and the dynamic programme
 
 
 def test_assignment_covers_guesses_no_assignment_fits(ctl):
