@@ -181,6 +181,7 @@ def _assign_shared(chain: CorridorChain, both: np.ndarray, pts: np.ndarray, s_pr
         weights = np.left_shift(np.int64(1), np.arange(n_m, dtype=np.int64))
         zero = d2 == 0.0
         stay, adv = (zero[..., :n_m] @ weights).tolist(), (zero[..., n_m:] @ weights).tolist()
+    last = None  # (bit sets, mask, assignment) of the previous disc
     for d in range(n_d):
         cand = first_candidates(n_m, None if s_prev is None else s_prev[d])
         s = None
@@ -188,7 +189,11 @@ def _assign_shared(chain: CorridorChain, both: np.ndarray, pts: np.ndarray, s_pr
             mask = None
             if cand is not None and np.min(d2[d, 0, :n_m][cand]) <= REANCHOR_M**2:
                 mask = int(cand.astype(np.int64) @ weights)
-            s = feasible_from_bits(stay[d], adv[d], mask)
+            if last is not None and last[0] == stay[d] and last[1] == adv[d] and last[2] == mask:
+                s = last[3]  # the same bit sets (discs in the same members): the same answer
+            else:
+                s = feasible_from_bits(stay[d], adv[d], mask)
+                last = (stay[d], adv[d], mask, s)
         ss[d] = assign_stages(chain, pts[:, d], cand, tol=tol) if s is None else s
     plain = chain.stay[ss]
     adv = np.diff(ss, axis=1) > 0
