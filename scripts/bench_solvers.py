@@ -34,6 +34,7 @@ the issue-14 step target: ``python scripts/bench_solvers.py --solvers zerofpr --
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import os
 import subprocess
@@ -239,22 +240,45 @@ def replay(backends: dict, ocp, problems, rate_step) -> dict:
     return out
 
 
-def mujoco_loops(solvers: list[str], seeds: int, footprints: tuple[str, ...] = ("disc",)) -> dict:
+def replay_min(make, pose0: np.ndarray, observations: list, commands: list, repeats: int) -> np.ndarray:
+    """Per-step minimum wall time [ms] (S,) of ``repeats`` replays of an episode's
+    ``observations`` (S,) through fresh controllers ``make()`` reset at ``pose0`` (3,).
+
+    The controller is deterministic given its observations, so every replay poses and solves
+    the very problems of the episode (checked: each replayed command equals the episode's
+    ``commands``, else RuntimeError); the minimum over the replays drops the time a step
+    spent waiting for a core on a loaded machine, which a single run cannot separate."""
+    best = np.full(len(observations), np.inf)
+    for _ in range(repeats):
+        ctl = make()
+        ctl.reset(pose0)
+        for i, obs in enumerate(observations):
+            t0 = time.perf_counter()
+            cmd = ctl.step(obs)
+            best[i] = min(best[i], (time.perf_counter() - t0) * 1e3)
+            if (cmd.v, cmd.w) != (commands[i].v, commands[i].w):
+                raise RuntimeError(f"replay step {i}: command {(cmd.v, cmd.w)} differs from the episode's "
+                                   f"{(commands[i].v, commands[i].w)}")
+    return best
+
+
+def mujoco_loops(solvers: list[str], seeds: int, footprints: tuple[str, ...] = ("disc",), replays: int = 0) -> dict:
     """The five built-in scenarios x ``seeds`` random initial yaws in MuJoCo (``sanav-mj run``'s
     harness) with SA-MPC on each of ``solvers`` and each of ``footprints`` (``MPCConfig.footprint``:
     ``"disc"`` and / or ``"discs"``, each with its own map and plan, as ``run --footprint``),
     taking turns episode by episode so a change of the machine's load hits them alike:
     outcomes, the per-step wall time (``solve_ms``) and CPU time of ``SAMPC.step``, and the
     part of the wall time spent in the solver back-end's call (``SolveResult.solver_ms``; the
-    rest is the Python around it). Returns ``solver`` -> statistics for the disc footprint
-    alone, else ``"solver:footprint"`` -> statistics."""
+    rest is the Python around it). With ``replays`` > 0 also the per-step minimum over that
+    many replays of each episode (:func:`replay_min`). Returns ``solver`` -> statistics for
+    the disc footprint alone, else ``"solver:footprint"`` -> statistics."""
     from sanav_mj.control.factory import make_controller
     from sanav_mj.control.spec import ControllerSpec
     from sanav_mj.eval.episode import initial_pose, prepare, run_scenario
     from sanav_mj.scene import load_scenario
 
     keys = [(s, f) for s in solvers for f in footprints]
-    acc = {k: {"runs": [], "wall": [], "cpu": [], "solver": [], "turn": [], "statuses": {}} for k in keys}
+    acc = {k: {"runs": [], "wall": [], "cpu": [], "solver": [], "turn": [], "statuses": {}, "replay": []} for k in keys}
     for name in BUILTIN:
         scenario = load_scenario(name)
         for seed in range(seeds):
@@ -268,13 +292,17 @@ def mujoco_loops(solvers: list[str], seeds: int, footprints: tuple[str, ...] = (
                     ctl = make_controller(spec_s, prep.scenario, prep.grid, prep.areas, prep.plan)
                     step, solve = ctl.step, ctl.solve
                     cell = [0.0]
+                    log: tuple[list, list] = ([], [])
 
-                    def timed(obs, step=step, cpu=a["cpu"], sol=a["solver"], cell=cell):
+                    def timed(obs, step=step, cpu=a["cpu"], sol=a["solver"], cell=cell, log=log):
+                        if replays:
+                            log[0].append(copy.deepcopy(obs))
                         cell[0] = 0.0
                         c0 = time.process_time()
                         cmd = step(obs)
                         cpu.append((time.process_time() - c0) * 1e3)
                         sol.append(cell[0])
+                        log[1].append(cmd)
                         return cmd
 
                     def solve_timed(prob, x0, solve=solve, cell=cell):
@@ -285,6 +313,11 @@ def mujoco_loops(solvers: list[str], seeds: int, footprints: tuple[str, ...] = (
                     ctl.step, ctl.solve = timed, solve_timed
                     ep = run_scenario(prep, "sa-mpc", seed=seed, controller_obj=ctl, controller_spec=spec_s).episode
                     a["wall"].extend(ep.trace.solve_ms)
+                    if replays:
+                        def make(spec_s=spec_s, prep=prep):
+                            return make_controller(spec_s, prep.scenario, prep.grid, prep.areas, prep.plan)
+
+                        a["replay"].extend(replay_min(make, start, log[0], log[1], replays).tolist())
                     a["turn"].extend(st == "turn" for st in ep.trace.status)
                     for st in ep.trace.status:
                         a["statuses"][st] = a["statuses"].get(st, 0) + 1
@@ -328,6 +361,11 @@ def mujoco_loops(solvers: list[str], seeds: int, footprints: tuple[str, ...] = (
             "mpc_cpu_ms_p99": float(np.percentile(cpu[mpc], 99)),
             "load_avg_1min": os.getloadavg()[0],
         }
+        if replays:
+            rep = np.array(a["replay"])
+            out[key].update({"replays": replays, "replay_min_ms_mean": float(rep.mean()),
+                             "replay_min_ms_p50": float(np.median(rep)), "replay_min_ms_p99": float(np.percentile(rep, 99)),
+                             "replay_min_ms_max": float(rep.max())})
     return out
 
 
@@ -373,6 +411,9 @@ def print_mujoco(loops: dict, seeds: int) -> None:
               f"p99 {m['mpc_cpu_ms_p99']:.2f} ms")  # fmt: skip
         print(f"{'':14s} of the wall mean: solver call {m['solver_ms_mean']:.2f} ms, Python around it "
               f"{m['python_ms_mean']:.2f} ms (p99 {m['python_ms_p99']:.2f})")
+        if "replays" in m:
+            print(f"{'':14s} per-step minimum of {m['replays']} replays: mean {m['replay_min_ms_mean']:.2f} p50 "
+                  f"{m['replay_min_ms_p50']:.2f} p99 {m['replay_min_ms_p99']:.2f} max {m['replay_min_ms_max']:.1f} ms")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -385,6 +426,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="also run the five built-in scenarios x SEEDS random yaws in MuJoCo per back-end")
     ap.add_argument("--footprint", nargs="+", choices=("disc", "discs"), default=["disc"],
                     help="--mujoco: SA-MPC's footprint mode(s) (MPCConfig.footprint), run side by side")
+    ap.add_argument("--replays", type=int, default=0, metavar="K",
+                    help="--mujoco: also replay each episode K times and report the per-step minimum")
     ap.add_argument("--mujoco-only", action="store_true",
                     help="only the MuJoCo loops (--mujoco): no recording, replay, closed loops or build")
     ap.add_argument("--json", type=Path, help="write all results to this file")
@@ -393,7 +436,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--mujoco-only needs --mujoco SEEDS")
     if args.mujoco_only:
         results = {"load_avg_start": os.getloadavg(), "mujoco": mujoco_loops(args.solvers, args.mujoco,
-                                                                              tuple(args.footprint))}
+                                                                              tuple(args.footprint), args.replays)}
         results["load_avg_end"] = os.getloadavg()
         print_mujoco(results["mujoco"], args.mujoco)
         print(f"\nload average (1, 5, 15 min): start {results['load_avg_start']}, end {results['load_avg_end']}")
@@ -435,7 +478,7 @@ def main(argv: list[str] | None = None) -> int:
         if not args.no_build:
             results["build"][solver] = build_times(solver, args.horizon)
     if args.mujoco:
-        results["mujoco"] = mujoco_loops(args.solvers, args.mujoco, tuple(args.footprint))
+        results["mujoco"] = mujoco_loops(args.solvers, args.mujoco, tuple(args.footprint), args.replays)
     results["load_avg_end"] = os.getloadavg()
 
     ref = results["replay"].get("ipopt")
