@@ -153,6 +153,25 @@ def _shift_bounds(plain: np.ndarray, pts0: np.ndarray, follow: bool) -> tuple[np
     return DiscCover.bounds(plain)
 
 
+def _disc_rows(ctl: SAMPC, xs: np.ndarray) -> np.ndarray:
+    """:meth:`SAMPC.position_rows` in ``"discs"`` mode: the disc centres of stages 1..N of
+    the rollout ``xs`` (N+1, 3) as rows (2DN,) [m]; the centres of all of ``xs`` are kept
+    for :func:`_plan_centres` (the acceptance's rollout is the plan ``describe`` reports)."""
+    pts = ctl.discs.centres(xs)
+    ctl._centres_of = (xs, pts)
+    return pts[1:].ravel()
+
+
+def _plan_centres(ctl: SAMPC, xs: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """(N+1, D, 2) [m] disc centres of ``x0`` (3,) and the states ``xs[1:]`` (N, 3): those
+    :func:`_disc_rows` computed for this very ``xs`` when its first state is ``x0`` bit for
+    bit (the acceptance's rollout from ``x0``), else computed."""
+    kept = ctl._centres_of
+    if kept is not None and kept[0] is xs and xs[0].tobytes() == np.asarray(x0, dtype=float).tobytes():
+        return kept[1]
+    return ctl.discs.centres(np.vstack((x0[None], xs[1:])))
+
+
 def _disc_margins(pts: np.ndarray, bs: np.ndarray) -> np.ndarray:
     """:meth:`DiscCover.margins` from the disc centres ``pts`` (K, D, 2) [m] and the boxes
     ``bs`` (D, K, 4) [m], vectorised over the discs (the same minima in the same order):
@@ -532,8 +551,7 @@ class SAMPC(TrackingMPC):
     def _set_plan(self, areas: SafeAreas, plan: Plan, box_margin: float, dt: float) -> None:
         self.areas, self._rects, self.plan = areas, np.asarray(areas.rects, dtype=float), plan
         self.chain, self.ref_states, self.ref_inputs, self._ref_chain = _plan_tables(areas, plan, box_margin, dt)
-        self._sa_cache: dict[tuple[int, int], np.ndarray] = {}
-        self._both = np.concatenate((self.chain.stay, self.chain.advance))  # assign_stages' table
+        self._sa_cache, self._both = {}, np.concatenate((self.chain.stay, self.chain.advance))  # J_SA, _assign_shared
         self._stops, self.disc_chains = _pose_route_tables(areas, plan, box_margin, dt)
 
     def replace_plan(self, areas: SafeAreas, plan: Plan) -> None:
@@ -561,8 +579,7 @@ class SAMPC(TrackingMPC):
         pose = np.asarray(pose, dtype=float).reshape(3)
         super().reset(pose, u_prev=u_prev, opening_turn=opening_turn)
         self._s_prev: np.ndarray | None = None
-        self._s_prev_d: np.ndarray | None = None
-        self._centres_of: tuple[np.ndarray, np.ndarray] | None = None
+        self._s_prev_d, self._centres_of = None, None  # _centres_of: see _disc_rows
         if self.discs is not None:
             self._escape.reset()
         self.last: StepInfo | None = None
@@ -611,11 +628,7 @@ class SAMPC(TrackingMPC):
 
     def position_rows(self, xs: np.ndarray) -> np.ndarray:
         """The position rows of ``g`` for the rollout ``xs`` (N+1, 3): positions or disc centres of stages 1..N."""
-        if self.discs is None:
-            return xs[1:, :2].ravel()
-        pts = self.discs.centres(xs)
-        self._centres_of = (xs, pts)  # the acceptance's rollout: describe() reads its centres
-        return pts[1:].ravel()
+        return xs[1:, :2].ravel() if self.discs is None else _disc_rows(self, xs)
 
     def turn_allowed(self, x0: np.ndarray) -> bool:
         """``"disc"``: always; ``"discs"``: where the centres' sweep fits (:meth:`DiscCover.turn_allowed`)."""
@@ -639,18 +652,9 @@ class SAMPC(TrackingMPC):
         if self.discs is None:
             margins = np.concatenate(([box_slack(x0[None, :2], boxes[:1])[0]], box_slack(xs[1:, :2], boxes[1:])))
         else:
-            margins = _disc_margins(self._plan_centres(xs, x0), context[3])
+            margins = _disc_margins(_plan_centres(self, xs, x0), context[3])
         chain = self.chain if self.disc_chains is None else self.disc_chains[self.discs.centre]
         return stage_rect_ids(chain, self._rects, s, xs[:, :2]), margins
-
-    def _plan_centres(self, xs: np.ndarray, x0: np.ndarray) -> np.ndarray:
-        """(N+1, D, 2) [m] disc centres of ``x0`` (3,) and the states ``xs[1:]`` (N, 3): those
-        :meth:`position_rows` computed for this very ``xs`` when its first state is ``x0``
-        bit for bit (the acceptance's rollout from ``x0``), else computed."""
-        kept = self._centres_of
-        if kept is not None and kept[0] is xs and xs[0].tobytes() == np.asarray(x0, dtype=float).tobytes():
-            return kept[1]
-        return self.discs.centres(np.vstack((x0[None], xs[1:])))
 
     def turn_context(self, x0: np.ndarray, xs: np.ndarray):
         """Stage assignment and boxes of an opening-turn plan."""

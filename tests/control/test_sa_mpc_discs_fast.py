@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sanav_mj.control.disc_stages import DiscCover
-from sanav_mj.control.sa_mpc import SAMPC, MPCConfig, _assign_shared, _disc_margins, _relax_all
+from sanav_mj.control.sa_mpc import SAMPC, MPCConfig, _assign_shared, _disc_margins, _plan_centres, _relax_all
 from sanav_mj.control.stages import _outside_sq, assign_feasible, first_candidates
 from sanav_mj.control.unicycle import rollout_np
 from sanav_mj.footprint import Footprint
@@ -105,11 +105,11 @@ def test_describe_reuses_the_acceptance_centres_only_for_the_same_rollout(ctl):
     xs = rollout_np(x0, rng.uniform(-0.5, 0.5, (ctl.N, 2)), ctl.dt)
     ctl.position_rows(xs)  # what the acceptance test computes
     ref = ctl.discs.centres(np.vstack((x0[None], xs[1:])))
-    assert ctl._plan_centres(xs, x0) is ctl._centres_of[1]
-    assert np.array_equal(ctl._plan_centres(xs, x0), ref)
+    assert _plan_centres(ctl, xs, x0) is ctl._centres_of[1]
+    assert np.array_equal(_plan_centres(ctl, xs, x0), ref)
     # another rollout, or another first state: computed afresh, never the kept centres
     other = xs.copy()
-    assert ctl._plan_centres(other, x0) is not ctl._centres_of[1]
+    assert _plan_centres(ctl, other, x0) is not ctl._centres_of[1]
     x1 = x0 + np.array([0.01, 0.0, 0.0])
-    got = ctl._plan_centres(xs, x1)
+    got = _plan_centres(ctl, xs, x1)
     assert np.array_equal(got, ctl.discs.centres(np.vstack((x1[None], xs[1:]))))
