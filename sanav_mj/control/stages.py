@@ -295,8 +295,17 @@ def assign_feasible(v: np.ndarray, L: int, first_candidates, reanchor_distance: 
     """
     weights = np.left_shift(np.int64(1), np.arange(L, dtype=np.int64))
     zero = v == 0.0
-    stay = (zero[:, :L] @ weights).tolist()
-    adv = (zero[:, L:] @ weights).tolist()
+    first_mask = None
+    if first_candidates is not None and np.min(v[0, :L][first_candidates]) <= reanchor_distance**2:
+        first_mask = int(first_candidates.astype(np.int64) @ weights)
+    return feasible_from_bits((zero[:, :L] @ weights).tolist(), (zero[:, L:] @ weights).tolist(), first_mask)
+
+
+def feasible_from_bits(stay: list[int], adv: list[int], first_mask: int | None) -> np.ndarray | None:
+    """:func:`assign_feasible` from its bit sets: ``stay[k]`` / ``adv[k]`` (N+1 ints) have
+    bit ``j`` set when stage k's position is (within the tolerance) in member j's stay /
+    advance box; ``first_mask`` (bits of the members allowed for stage 0) or None. The
+    assignment (N+1,) int, or None when no zero-violation assignment exists."""
     n1 = len(stay)
     reach = [0] * n1
     r = stay[-1]
@@ -306,8 +315,8 @@ def assign_feasible(v: np.ndarray, L: int, first_candidates, reanchor_distance: 
         r = (stay[k + 1] & r) | ((adv[k + 1] & r) >> 1)
         reach[k] = r
     first = stay[0] & reach[0]
-    if first_candidates is not None and np.min(v[0, :L][first_candidates]) <= reanchor_distance**2:
-        first &= int(first_candidates.astype(np.int64) @ weights)
+    if first_mask is not None:
+        first &= first_mask
     if first == 0:
         return None
     s = np.empty(n1, dtype=int)
