@@ -20,7 +20,14 @@ import numpy as np
 
 from sanav_mj.control.adaptation import PlantAdaptation
 from sanav_mj.control.config import MPCConfig
-from sanav_mj.control.disc_stages import DiscCover, StallEscape, member_chain_of, next_stop, sa_params_of_ids
+from sanav_mj.control.disc_stages import (
+    DiscCover,
+    StallEscape,
+    footprint_reference,
+    member_chain_of,
+    next_stop,
+    sa_params_of_ids,
+)
 from sanav_mj.control.prediction import PredictionMonitor
 from sanav_mj.control.problem import build_tracking_ocp
 from sanav_mj.control.stages import (
@@ -90,9 +97,13 @@ def _plan_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
 
 
 def _disc_constraints(ctl: SAMPC, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray, guess: np.ndarray) -> Constraints:
-    """:meth:`SAMPC.constrain` in ``"discs"`` mode: per-disc stages; exit targets and J_SA
-    slots of the chain, or for a pose route (one chain per disc) the planned targets and the
-    areas every disc's assignment spans (:mod:`sanav_mj.control.disc_stages`). With
+    """:meth:`SAMPC.constrain` in ``"discs"`` mode: per-disc stages; the reference's targets as
+    they are (no exit targets: their bearing yaw need not fit the footprint, and the corridor
+    reference is already moved to poses that do, :func:`~sanav_mj.control.disc_stages.footprint_reference`;
+    at barn_0060 they made the whole horizon one bearing pose the footprint could not take
+    where the robot stopped) and J_SA slots of the
+    chain, or for a pose route (one chain per disc) the areas every disc's assignment spans
+    (:mod:`sanav_mj.control.disc_stages`). With
     ``PredictionDerating.tighten`` the disc rows' boxes are shrunk by the measured one-step
     prediction error and their widening is capped at the untightened boxes while the robot
     moves (:func:`~sanav_mj.control.stages.tighten_relax`; the argument and its assumptions
@@ -102,7 +113,7 @@ def _disc_constraints(ctl: SAMPC, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.n
     bs, excursion = ctl.discs.relax(plain, pts[0], tight)
     c = ctl.discs.centre
     if ctl.disc_chains is None:
-        xr, ur = exit_targets(ctl.chain, ctl._ref_chain[ctl._horizon_idx], x_ref, u_ref, ss[c], x0[:2], float(x0[2]))
+        xr, ur = x_ref, u_ref
         theta = ctl._sa_params(np.array([ss[:, 0].min(), ss[:, -1].max()]))
     else:  # a pose route: its reference walks every disc's chain; targets stay as planned
         xr, ur = x_ref, u_ref
@@ -422,7 +433,6 @@ class SAMPC(TrackingMPC):
         dt = float(config.dt)
         adaptation = PlantAdaptation(robot, dt, limits.v_max, limits.w_max, limits.a_max,
                                      limits.lower(), limits.upper(), config.adaptation)
-        self._set_plan(areas, plan, config.stage_box_margin, dt)
         self.penalty = SafeAreaPenalty(len(config.q_sa))
         self.discs: DiscCover | None = None
         if config.footprint == "discs":
@@ -430,6 +440,7 @@ class SAMPC(TrackingMPC):
                 raise ValueError("footprint: MPCConfig.footprint='discs' needs the robot's Footprint, got None")
             self.discs = DiscCover.of(footprint, config.footprint_discs)
             self._escape = StallEscape(config.horizon)
+        self._set_plan(areas, plan, config.stage_box_margin, dt)
         pts = None if self.discs is None else self.discs.offsets
         ocp = build_tracking_ocp(config.horizon, dt, self.penalty, position_constraints=True, points=pts)
         super().__init__(robot, config, limits, ocp, adaptation, failure_injector=failure_injector)
@@ -445,6 +456,9 @@ class SAMPC(TrackingMPC):
         self.chain, self.ref_states, self.ref_inputs, self._ref_chain = _plan_tables(areas, plan, box_margin, dt)
         self._sa_cache: dict[tuple[int, int], np.ndarray] = {}
         self._stops, self.disc_chains = _pose_route_tables(areas, plan, box_margin, dt)
+        if self.discs is not None and self.disc_chains is None:  # a corridor reference: footprint inside
+            self.ref_states, self.ref_inputs = footprint_reference(self.discs, self.chain, self.ref_states,
+                                                                   self.ref_inputs, dt)
 
     def replace_plan(self, areas: SafeAreas, plan: Plan) -> None:
         """Follow a new corridor and reference (a successful plan on ``areas`` starting at the
