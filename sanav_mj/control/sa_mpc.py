@@ -152,6 +152,16 @@ def _shift_bounds(plain: np.ndarray, pts0: np.ndarray, follow: bool) -> tuple[np
     return DiscCover.bounds(plain)
 
 
+def _route_tables(ctl: SAMPC, areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
+    """:func:`_pose_route_tables` and the reference states and inputs ``ctl`` follows: in
+    ``"discs"`` mode with a corridor reference moved to poses whose disc centres stay in the
+    chain (:func:`~sanav_mj.control.disc_stages.footprint_reference`), else as tabled."""
+    stops, chains = _pose_route_tables(areas, plan, box_margin, dt)
+    if ctl.discs is None or chains is not None:
+        return stops, chains, ctl.ref_states, ctl.ref_inputs
+    return (stops, chains, *footprint_reference(ctl.discs, ctl.chain, ctl.ref_states, ctl.ref_inputs, dt))
+
+
 def _pose_route_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
     """A pose route's stops (S,) int at period ``dt`` [s] and one chain per disc; (None,
     None) for other plans (the horizon never holds; one chain for all discs)."""
@@ -455,10 +465,7 @@ class SAMPC(TrackingMPC):
         self.areas, self._rects, self.plan = areas, np.asarray(areas.rects, dtype=float), plan
         self.chain, self.ref_states, self.ref_inputs, self._ref_chain = _plan_tables(areas, plan, box_margin, dt)
         self._sa_cache: dict[tuple[int, int], np.ndarray] = {}
-        self._stops, self.disc_chains = _pose_route_tables(areas, plan, box_margin, dt)
-        if self.discs is not None and self.disc_chains is None:  # a corridor reference: footprint inside
-            self.ref_states, self.ref_inputs = footprint_reference(self.discs, self.chain, self.ref_states,
-                                                                   self.ref_inputs, dt)
+        self._stops, self.disc_chains, self.ref_states, self.ref_inputs = _route_tables(self, areas, plan, box_margin, dt)
 
     def replace_plan(self, areas: SafeAreas, plan: Plan) -> None:
         """Follow a new corridor and reference (a successful plan on ``areas`` starting at the
