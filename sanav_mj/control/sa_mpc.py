@@ -97,13 +97,12 @@ def _plan_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
 
 
 def _disc_constraints(ctl: SAMPC, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray, guess: np.ndarray) -> Constraints:
-    """:meth:`SAMPC.constrain` in ``"discs"`` mode: per-disc stages; the reference's targets as
-    they are (no exit targets: their bearing yaw need not fit the footprint, and the corridor
-    reference is already moved to poses that do, :func:`~sanav_mj.control.disc_stages.footprint_reference`;
-    at barn_0060 they made the whole horizon one bearing pose the footprint could not take
-    where the robot stopped) and J_SA slots of the
-    chain, or for a pose route (one chain per disc) the areas every disc's assignment spans
-    (:mod:`sanav_mj.control.disc_stages`). With
+    """:meth:`SAMPC.constrain` in ``"discs"`` mode: per-disc stages; exit targets and J_SA
+    slots of the chain (the corridor reference itself moved to poses whose disc centres fit
+    the chain, :func:`~sanav_mj.control.disc_stages.footprint_reference`; keeping the
+    targets as planned instead, without exit targets, collided at the envelope corner:
+    barn_0061, 5.8 cm excursion), or for a pose route (one chain per disc) the planned
+    targets and the areas every disc's assignment spans (:mod:`sanav_mj.control.disc_stages`). With
     ``PredictionDerating.tighten`` the disc rows' boxes are shrunk by the measured one-step
     prediction error and their widening is capped at the untightened boxes while the robot
     moves (:func:`~sanav_mj.control.stages.tighten_relax`; the argument and its assumptions
@@ -113,7 +112,7 @@ def _disc_constraints(ctl: SAMPC, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.n
     bs, excursion = ctl.discs.relax(plain, pts[0], tight)
     c = ctl.discs.centre
     if ctl.disc_chains is None:
-        xr, ur = x_ref, u_ref
+        xr, ur = exit_targets(ctl.chain, ctl._ref_chain[ctl._horizon_idx], x_ref, u_ref, ss[c], x0[:2], float(x0[2]))
         theta = ctl._sa_params(np.array([ss[:, 0].min(), ss[:, -1].max()]))
     else:  # a pose route: its reference walks every disc's chain; targets stay as planned
         xr, ur = x_ref, u_ref

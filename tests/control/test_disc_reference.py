@@ -55,20 +55,3 @@ def test_discs_controller_on_an_l_turn_into_a_narrow_passage_tracks_a_reference_
     moved = np.any(ctl.ref_states != plain.ref_states, axis=1)
     assert moved.any() and np.all(COVER.clearance(ctl.chain, plain.ref_states[~moved]) >= 0.0)
 
-
-def test_discs_controller_keeps_the_reference_targets_ahead_of_its_assignment():
-    """The disc mode pulls reference samples beyond the assigned member into the next one and
-    turns their yaw to the bearing (exit targets); the discs mode keeps the reference's poses,
-    which fit the footprint (a bearing pose at a turn into a narrow passage did not: barn_0060)."""
-    areas = make_areas([[0.0, 0.0, 2.0, 0.25], [1.9, 0.25, 2.0, 2.0]])
-    plan = make_plan(areas, [0, 1], [[0.3, 0.125], [1.95, 0.125], [1.95, 1.8]])
-    x0 = np.array([1.6, 0.125, 0.0])
-    guess = np.tile(x0, (26, 1))
-    for cfg, kw, kept in ((MPCConfig(box_margin=0.0), {}, False),
-                          (MPCConfig(footprint="discs", footprint_box_margin=0.0), dict(footprint=FP), True)):
-        ctl = SAMPC(ROBOT, areas, plan, cfg, **kw)
-        ctl.reset(x0)
-        xr, ur = ctl.reference(x0)
-        con = ctl.constrain(x0, xr, ur, guess[: ctl.N + 1])
-        assert np.array_equal(con.x_ref, xr) == kept
-        assert np.array_equal(con.u_ref, ur) == kept
