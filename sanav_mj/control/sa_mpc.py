@@ -21,7 +21,14 @@ import numpy as np
 
 from sanav_mj.control.adaptation import PlantAdaptation
 from sanav_mj.control.config import MPCConfig
-from sanav_mj.control.disc_stages import DiscCover, StallEscape, member_chain_of, next_stop, sa_params_of_ids
+from sanav_mj.control.disc_stages import (
+    DiscCover,
+    StallEscape,
+    footprint_reference,
+    member_chain_of,
+    next_stop,
+    sa_params_of_ids,
+)
 from sanav_mj.control.prediction import PredictionMonitor
 from sanav_mj.control.problem import build_tracking_ocp
 from sanav_mj.control.stages import (
@@ -98,8 +105,11 @@ def _plan_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
 
 def _disc_constraints(ctl: SAMPC, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray, guess: np.ndarray) -> Constraints:
     """:meth:`SAMPC.constrain` in ``"discs"`` mode: per-disc stages; exit targets and J_SA
-    slots of the chain, or for a pose route (one chain per disc) the planned targets and the
-    areas every disc's assignment spans (:mod:`sanav_mj.control.disc_stages`). With
+    slots of the chain (the corridor reference itself moved to poses whose disc centres fit
+    the chain, :func:`~sanav_mj.control.disc_stages.footprint_reference`; keeping the
+    targets as planned instead, without exit targets, collided at the envelope corner:
+    barn_0061, 5.8 cm excursion), or for a pose route (one chain per disc) the planned
+    targets and the areas every disc's assignment spans (:mod:`sanav_mj.control.disc_stages`). With
     ``PredictionDerating.tighten`` the disc rows' boxes are shrunk by the measured one-step
     prediction error and their widening is capped at the untightened boxes while the robot
     moves (:func:`~sanav_mj.control.stages.tighten_relax`; the argument and its assumptions
@@ -247,6 +257,16 @@ def _relax_all(plain: np.ndarray, pts0: np.ndarray, tighten: tuple[float, bool] 
         out[:, 1:, :2] = np.maximum(out[:, 1:, :2], plain[:, 1:, :2])
         out[:, 1:, 2:] = np.minimum(out[:, 1:, 2:], plain[:, 1:, 2:])
     return out, excursion
+
+
+def _route_tables(ctl: SAMPC, areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
+    """:func:`_pose_route_tables` and the reference states and inputs ``ctl`` follows: in
+    ``"discs"`` mode with a corridor reference moved to poses whose disc centres stay in the
+    chain (:func:`~sanav_mj.control.disc_stages.footprint_reference`), else as tabled."""
+    stops, chains = _pose_route_tables(areas, plan, box_margin, dt)
+    if ctl.discs is None or chains is not None:
+        return stops, chains, ctl.ref_states, ctl.ref_inputs
+    return (stops, chains, *footprint_reference(ctl.discs, ctl.chain, ctl.ref_states, ctl.ref_inputs, dt))
 
 
 def _pose_route_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
@@ -530,7 +550,6 @@ class SAMPC(TrackingMPC):
         dt = float(config.dt)
         adaptation = PlantAdaptation(robot, dt, limits.v_max, limits.w_max, limits.a_max,
                                      limits.lower(), limits.upper(), config.adaptation)
-        self._set_plan(areas, plan, config.stage_box_margin, dt)
         self.penalty = SafeAreaPenalty(len(config.q_sa))
         self.discs: DiscCover | None = None
         if config.footprint == "discs":
@@ -538,6 +557,7 @@ class SAMPC(TrackingMPC):
                 raise ValueError("footprint: MPCConfig.footprint='discs' needs the robot's Footprint, got None")
             self.discs = DiscCover.of(footprint, config.footprint_discs)
             self._escape = StallEscape(config.horizon)
+        self._set_plan(areas, plan, config.stage_box_margin, dt)
         pts = None if self.discs is None else self.discs.offsets
         ocp = build_tracking_ocp(config.horizon, dt, self.penalty, position_constraints=True, points=pts)
         super().__init__(robot, config, limits, ocp, adaptation, failure_injector=failure_injector)
@@ -552,7 +572,7 @@ class SAMPC(TrackingMPC):
         self.areas, self._rects, self.plan = areas, np.asarray(areas.rects, dtype=float), plan
         self.chain, self.ref_states, self.ref_inputs, self._ref_chain = _plan_tables(areas, plan, box_margin, dt)
         self._sa_cache, self._both = {}, np.concatenate((self.chain.stay, self.chain.advance))  # J_SA, _assign_shared
-        self._stops, self.disc_chains = _pose_route_tables(areas, plan, box_margin, dt)
+        self._stops, self.disc_chains, self.ref_states, self.ref_inputs = _route_tables(self, areas, plan, box_margin, dt)
 
     def replace_plan(self, areas: SafeAreas, plan: Plan) -> None:
         """Follow a new corridor and reference (a successful plan on ``areas`` starting at the
