@@ -85,14 +85,22 @@ class LiveGridConfig:
     occ_thresh: float = 0.5
     hit_floor: float | None = 0.0
     route_kernel: str = "square"
+    noise_cells: int = 0
+    floor_at: float | None = None
 
     def __post_init__(self) -> None:
+        if isinstance(self.noise_cells, bool) or not isinstance(self.noise_cells, int) or self.noise_cells < 0:
+            raise ValueError(f"LiveGridConfig.noise_cells must be an integer >= 0 [cells], got {self.noise_cells!r}")
         if self.route_kernel not in ("centre", "square"):
             raise ValueError(f"LiveGridConfig.route_kernel must be 'centre' or 'square', got {self.route_kernel!r}")
         if self.hit_floor is not None and not (isinstance(self.hit_floor, (int, float))
                                                and self.free_thresh < self.hit_floor <= self.l_max):
             raise ValueError(f"LiveGridConfig.hit_floor must be None or in (free_thresh, l_max] = "
                              f"({self.free_thresh}, {self.l_max}], got {self.hit_floor!r}")
+        if self.floor_at is not None and not (isinstance(self.floor_at, (int, float)) and not isinstance(
+                self.floor_at, bool) and self.free_thresh < self.floor_at <= self.l_max):
+            raise ValueError(f"LiveGridConfig.floor_at must be None or in (free_thresh, l_max] = "
+                             f"({self.free_thresh}, {self.l_max}], got {self.floor_at!r}")
         vals = (self.l_free, self.l_occ, self.l_min, self.l_max, self.free_thresh, self.occ_thresh)
         if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals):
             raise ValueError(f"LiveGridConfig fields must be finite numbers, got {vals}")
@@ -101,9 +109,10 @@ class LiveGridConfig:
         if not (self.l_min <= self.free_thresh < 0 < self.occ_thresh <= self.l_max):
             raise ValueError("LiveGridConfig needs l_min <= free_thresh < 0 < occ_thresh <= l_max, got "
                              f"{self.l_min}, {self.free_thresh}, {self.occ_thresh}, {self.l_max}")
-        if not self.l_min + self.l_occ > self.free_thresh:
-            raise ValueError("LiveGridConfig needs l_min + l_occ > free_thresh (one return makes a cell non-free), "
-                             f"got {self.l_min} + {self.l_occ} <= {self.free_thresh}")
+        if not (self.l_min + self.l_occ > self.free_thresh or self.noise_cells >= 1):
+            raise ValueError("LiveGridConfig needs l_min + l_occ > free_thresh (one return makes a cell non-free) "
+                             f"unless noise_cells >= 1, got {self.l_min} + {self.l_occ} <= {self.free_thresh} "
+                             f"with noise_cells {self.noise_cells}")
 
 
 @dataclass(frozen=True)
@@ -334,7 +343,8 @@ class LiveGrid:
             self.log_odds[:, -1] = config.l_max
         if ny * h > (b[3] - b[1]) + _SIZE_TOL * h:
             self.log_odds[-1, :] = config.l_max
-        self._offsets = inflation_offsets(self.inflation, h)
+        # the safe (and route) kernel: the inflation plus config.noise_cells cells
+        self._offsets = inflation_offsets(self.inflation + config.noise_cells * h, h)
         r = int(np.abs(self._offsets).max())
         self._r = r
         self._pw = nx + 2 * r  # padded width: neighbourhood updates need no bounds checks
@@ -343,7 +353,8 @@ class LiveGrid:
         # the kernel as row runs (di, half-width): the square-to-square distance grows with |dj|
         self._rows = self._row_runs(self._offsets)
         # the route counts' kernel (config.route_kernel), within radius r as well
-        self._route_offsets = (centre_offsets(self.inflation, h) if config.route_kernel == "centre"
+        self._route_offsets = (centre_offsets(self.inflation + config.noise_cells * h, h)
+                               if config.route_kernel == "centre"
                                else self._offsets)
         self._route_koff = self._route_offsets[:, 0] * self._pw + self._route_offsets[:, 1]
         self._route_rows = self._row_runs(self._route_offsets)
@@ -361,8 +372,9 @@ class LiveGrid:
         self._delta = np.array([0.0, config.l_free, config.l_occ], dtype=np.float32)
         # the compiled commit's parameters, float32 as NumPy compares float32 cells with them
         hf = config.l_min if config.hit_floor is None else config.hit_floor
+        fa = -np.inf if config.floor_at is None else config.floor_at
         self._params = np.array([config.l_free, config.l_occ, config.l_min, config.l_max, config.free_thresh,
-                                 config.occ_thresh, hf], dtype=np.float32)
+                                 config.occ_thresh, hf, fa], dtype=np.float32)
         self._scratch = CommitScratch(len(self._pad))
         self._cells = np.empty(ny * nx, dtype=np.int64)  # the compiled traversal's output
         self._rows_arr = np.array(self._rows, dtype=np.int64).reshape(-1, 2)
@@ -568,7 +580,10 @@ class LiveGrid:
         new = np.clip(old + self._delta[mark[touched]], c.l_min, c.l_max)
         if c.hit_floor is not None:
             hit_old = self._floor[touched] == c.hit_floor
-            self._floor[occ] = c.hit_floor
+            if c.floor_at is None:
+                self._floor[occ] = c.hit_floor
+            else:  # a return raises the floor only where the cell is now at floor_at or above
+                self._floor[touched[(mark[touched] == 2) & (new >= np.float32(c.floor_at))]] = c.hit_floor
             floor = self._floor[touched]
             hit_new = floor == c.hit_floor
             np.maximum(new, floor, out=new)
