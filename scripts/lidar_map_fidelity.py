@@ -52,10 +52,10 @@ def _raw(**kw):
         object.__setattr__(c, f.name, kw.get(f.name, f.default))
     return c
 CONFIGS |= {
-    "G3_0": _raw(floor_at=0.5, l_min=-3.0, noise_cells=0),
-    "G3_1": _raw(floor_at=0.5, l_min=-3.0, noise_cells=1),
-    "G2_0": _raw(floor_at=0.5, l_min=-2.0, noise_cells=0),
-    "G5_0": _raw(floor_at=0.5, l_min=-5.0, noise_cells=0),
+    "G5": _raw(floor_at=0.5, l_min=-5.0),
+    "H": _raw(floor_at=0.5, l_min=-5.0, l_occ=0.7),
+    "I": _raw(floor_at=1.5, l_min=-5.0),
+    "J": _raw(floor_at=0.5, l_min=-8.0),
 }
 
 

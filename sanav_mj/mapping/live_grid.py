@@ -79,14 +79,14 @@ class LiveGridConfig:
 
     l_free: float = -0.4
     l_occ: float = 1.0
-    l_min: float = -1.0
+    l_min: float = -5.0
     l_max: float = 3.5
     free_thresh: float = -0.35
     occ_thresh: float = 0.5
     hit_floor: float | None = 0.0
     route_kernel: str = "square"
     noise_cells: int = 0
-    floor_at: float | None = None
+    floor_at: float | None = 0.5
 
     def __post_init__(self) -> None:
         if isinstance(self.noise_cells, bool) or not isinstance(self.noise_cells, int) or self.noise_cells < 0:
@@ -109,10 +109,10 @@ class LiveGridConfig:
         if not (self.l_min <= self.free_thresh < 0 < self.occ_thresh <= self.l_max):
             raise ValueError("LiveGridConfig needs l_min <= free_thresh < 0 < occ_thresh <= l_max, got "
                              f"{self.l_min}, {self.free_thresh}, {self.occ_thresh}, {self.l_max}")
-        if not (self.l_min + self.l_occ > self.free_thresh or self.noise_cells >= 1):
+        if not (self.l_min + self.l_occ > self.free_thresh or self.floor_at is not None):
             raise ValueError("LiveGridConfig needs l_min + l_occ > free_thresh (one return makes a cell non-free) "
-                             f"unless noise_cells >= 1, got {self.l_min} + {self.l_occ} <= {self.free_thresh} "
-                             f"with noise_cells {self.noise_cells}")
+                             f"unless floor_at is set, got {self.l_min} + {self.l_occ} <= {self.free_thresh} "
+                             f"with floor_at None")
 
 
 @dataclass(frozen=True)
