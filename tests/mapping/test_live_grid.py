@@ -585,3 +585,27 @@ def test_route_grid_keeps_a_gap_the_known_map_passes(seed):
     assert np.array_equal(grids["centre"].log_odds, grids["square"].log_odds)
     assert np.array_equal(grids["centre"].safe(), grids["square"].safe())
     assert np.all(grids["centre"].route_safe() | ~grids["centre"].safe())
+
+
+def test_the_default_threshold_separates_material_cells_from_cells_in_front():
+    """The sensor model behind LiveGridConfig.floor_at, at the robot's lidar (0.02 m range
+    noise, models/diff_drive.xml) on the discs mode's 0.025 m cells: every cell holding
+    obstacle material, and the one just in front, is hit by more than f* = -l_free /
+    (l_occ - l_free) of the beams reaching it (the log-odds drift up: locked non-free), every
+    cell 1.5 cells or more in front by fewer (they end free). Exact values: the cell
+    entirely in front with the surface at its back edge 0.4409, at 2 cells in front 0.1001."""
+    from sanav_mj.mapping.live_grid import beam_hit_fraction
+
+    c, sigma = 0.025, 0.02
+    cfg = LiveGridConfig()
+    f_star = -cfg.l_free / (cfg.l_occ - cfg.l_free)
+    material = beam_hit_fraction(np.linspace(-0.05, c, 201), c, sigma)  # up to the cell just in front
+    front = beam_hit_fraction(np.linspace(1.5 * c, 10 * c, 201), c, sigma)
+    assert material.min() > 0.44 > f_star + 0.15 and front.max() < f_star
+    assert beam_hit_fraction(c, c, sigma) == pytest.approx(0.4409349, abs=1e-6)
+    assert beam_hit_fraction(2 * c, c, sigma) == pytest.approx(0.1000615, abs=1e-6)
+    # monotone: deeper into the obstacle, more of the reaching beams end in the cell
+    d = np.linspace(-0.05, 0.1, 301)
+    assert np.all(np.diff(beam_hit_fraction(d, c, sigma)[::-1]) >= -1e-12)
+    with pytest.raises(ValueError, match="sigma"):
+        beam_hit_fraction(0.0, c, 0.0)
