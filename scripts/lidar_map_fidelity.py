@@ -42,20 +42,13 @@ from sanav_mj.scene import load_scenario
 from sanav_mj.sim.lidar import Lidar, lidar_config
 from sanav_mj.sim.plant import Plant
 
+#: the grids compared: before floor_at (every return locks its cell non-free), the default,
+#: the default with one cell of extra inflation, and a higher hit-fraction threshold.
 CONFIGS = {
-    "floor": LiveGridConfig(hit_floor=0.0, l_min=-1.0, l_occ=1.0, noise_cells=0),
-}
-import dataclasses as _dc
-def _raw(**kw):
-    c = object.__new__(LiveGridConfig)
-    for f in _dc.fields(LiveGridConfig):
-        object.__setattr__(c, f.name, kw.get(f.name, f.default))
-    return c
-CONFIGS |= {
-    "G5": _raw(floor_at=0.5, l_min=-5.0),
-    "H": _raw(floor_at=0.5, l_min=-5.0, l_occ=0.7),
-    "I": _raw(floor_at=1.5, l_min=-5.0),
-    "J": _raw(floor_at=0.5, l_min=-8.0),
+    "before": LiveGridConfig(l_min=-1.0, floor_at=None),
+    "default": LiveGridConfig(),
+    "noise1": LiveGridConfig(noise_cells=1),
+    "l_occ0.7": LiveGridConfig(l_occ=0.7),
 }
 
 
