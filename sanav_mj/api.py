@@ -29,7 +29,7 @@ import numpy as np
 from sanav_mj.control.spec import CONTROLLER_NAMES, ControllerSpec
 from sanav_mj.eval.bench import run_bench
 from sanav_mj.eval.robustness import run_robustness
-from sanav_mj.eval.episode import DEFAULT_MARGIN_M, Prepared, planner_config
+from sanav_mj.eval.prepare import DEFAULT_MARGIN_M, Prepared, planner_config
 from sanav_mj.eval import episode as _episode
 from sanav_mj.mapping.build import RESOLUTION_RANGE_M
 from sanav_mj.mapping.safe_areas import MERGE_METHODS, SafeAreaMap
@@ -185,7 +185,7 @@ class RunResult:
             (:class:`~sanav_mj.control.sensing.SensingSAMPC`: its final ``map``, per-step
             ``records``, ``replans``); None in map mode.
         sensing_log: with ``sensing="lidar"`` and ``record_sensing=True``, the scans, map
-            frames and safe areas of the run (:class:`~sanav_mj.eval.episode.SensingLog`, what
+            frames and safe areas of the run (:class:`~sanav_mj.eval.outcome.SensingLog`, what
             a recording shows); else None.
     """
 

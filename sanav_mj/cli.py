@@ -414,7 +414,7 @@ def _cmd_scenario(args) -> int:
 
 
 def _cmd_areas(args) -> int:
-    from sanav_mj.eval.episode import areas_document, prepare
+    from sanav_mj.eval.prepare import areas_document, prepare
     from sanav_mj.eval.maps import is_ros_map, ros_areas_document
 
     outputs = {"--json": args.json, "--plot": args.plot}
@@ -456,7 +456,7 @@ def _cmd_areas(args) -> int:
 
 def _cmd_run(args) -> int:
     from sanav_mj.api import run_scenario  # the CLI is a thin layer over the Python API
-    from sanav_mj.eval.episode import footprint_spec
+    from sanav_mj.eval.prepare import footprint_spec
     from sanav_mj.sim.mismatch import parse_mismatch
 
     mismatch = parse_mismatch(args.mismatch)

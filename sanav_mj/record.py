@@ -299,7 +299,7 @@ class Recorder:
 
     Args:
         path: output ``.rrd`` file (its folder is created when missing).
-        prep: the prepared scenario (:class:`~sanav_mj.eval.episode.Prepared`: scenario,
+        prep: the prepared scenario (:class:`~sanav_mj.eval.prepare.Prepared`: scenario,
             grid, leaves, areas, plan).
         controller: controller name, shown in the recording name and summary.
         config: recording settings.
@@ -618,7 +618,7 @@ class Recorder:
         """Record what a lidar run saw (see "Sensing" in the module docstring).
 
         Args:
-            log: the run's :class:`~sanav_mj.eval.episode.SensingLog` (scans, map frames,
+            log: the run's :class:`~sanav_mj.eval.outcome.SensingLog` (scans, map frames,
                 safe-area frames).
             records: the controller's per-step
                 :class:`~sanav_mj.control.sensing.StepRecord` list (corridor, replans,
@@ -757,7 +757,7 @@ def record_episode(path: str | Path, outcome: Any, config: RecordConfig = Record
 
     Args:
         path: output ``.rrd`` file.
-        outcome: :class:`~sanav_mj.eval.episode.RunOutcome` (``prepared``, ``controller``,
+        outcome: :class:`~sanav_mj.eval.outcome.RunOutcome` (``prepared``, ``controller``,
             ``episode``, ``document``).
         config: recording settings.
 

@@ -36,7 +36,7 @@ from sanav_mj.eval.barn import BARN_SPEED, barn_score, optimal_path_length, wide
 from sanav_mj.footprint import robot_footprint
 from sanav_mj.mapping import MapConfig, build_map
 from sanav_mj.planning import plan
-from sanav_mj.eval.episode import planner_config
+from sanav_mj.eval.prepare import planner_config
 from sanav_mj.scene import load_scenario
 
 MARGIN = 0.05
@@ -132,7 +132,9 @@ def cmd_closed_loop(args) -> int:
     import json
     from collections import Counter
 
-    import sanav_mj.eval.episode as episode
+    import sanav_mj.eval.prepare as prepare_mod
+    from sanav_mj.eval.episode import run_scenario
+    from sanav_mj.eval.lidar import lidar_spec
     from sanav_mj.sim.mismatch import Mismatch
 
     from dataclasses import replace
@@ -155,13 +157,13 @@ def cmd_closed_loop(args) -> int:
         mpc = spec.sa_mpc
         args.discs, args.margin, args.refine, args.grow = (mpc.footprint_discs, mpc.footprint_margin,
                                                            mpc.footprint_refine, mpc.footprint_grow)
-        if args.sensing == "lidar":  # the sensed map is one grid (episode.lidar_spec)
-            args.refine = episode.lidar_spec(spec).sa_mpc.footprint_refine
+        if args.sensing == "lidar":  # the sensed map is one grid (lidar_spec)
+            args.refine = lidar_spec(spec).sa_mpc.footprint_refine
     else:
         # Measurement knob: the run path has no margin argument for the circumscribed disc,
         # so the module default is set for this process only (prepare() reads it).
         args.margin = MARGIN if args.margin is None else args.margin
-        episode.DEFAULT_MARGIN_M = args.margin
+        prepare_mod.DEFAULT_MARGIN_M = args.margin
         spec = ControllerSpec("sa-mpc")
     mm = {}
     for item in args.mismatch:
@@ -171,8 +173,8 @@ def cmd_closed_loop(args) -> int:
     t_opt = {r["scenario"]: float(r["t_opt_s"]) for r in csv.DictReader(open(args.worlds))} if args.worlds else {}
     rows = []
     for path, seed in ((p, s) for p in args.scenarios for s in args.seeds):
-        out = episode.run_scenario(path, seed=seed, resolution=args.resolution, mismatch=mismatch,
-                                   controller_spec=spec, sensing=args.sensing)
+        out = run_scenario(path, seed=seed, resolution=args.resolution, mismatch=mismatch,
+                           controller_spec=spec, sensing=args.sensing)
         d = out.document
         lidar = args.sensing == "lidar"
         exc = math.nan if lidar else 0.0

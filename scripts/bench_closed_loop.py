@@ -17,7 +17,8 @@ import numpy as np
 
 
 def main(argv: list[str] | None = None) -> int:
-    from sanav_mj.eval.episode import prepare, run_scenario
+    from sanav_mj.eval.episode import run_scenario
+    from sanav_mj.eval.prepare import prepare
     from sanav_mj.resources import builtin_scenarios
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -18,7 +18,8 @@ from collections import Counter
 
 import numpy as np
 
-from sanav_mj.eval.episode import lidar_controller, run_scenario
+from sanav_mj.eval.episode import run_scenario
+from sanav_mj.eval.lidar import lidar_controller
 from sanav_mj.scene import load_scenario
 from sanav_mj.sim.mismatch import Mismatch, parse_mismatch
 

@@ -99,7 +99,8 @@ def run(name: str, seed: int) -> str:
 
 _WORKER = """
 import dataclasses, json, sys
-from sanav_mj.eval.episode import lidar_controller, run_scenario
+from sanav_mj.eval.episode import run_scenario
+from sanav_mj.eval.lidar import lidar_controller
 from sanav_mj.scene import load_scenario
 sc = load_scenario(sys.argv[1])
 ctrl = lidar_controller(sc)

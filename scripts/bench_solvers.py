@@ -117,7 +117,7 @@ def make_case(name: str, speed: float = 0.8, dt: float = 0.1) -> tuple[SafeAreas
 
 def builtin_cases() -> dict:
     """The built-in scenarios mapped and planned as the pipeline does: name -> (areas, plan, start yaw)."""
-    from sanav_mj.eval.episode import initial_pose, prepare
+    from sanav_mj.eval.prepare import initial_pose, prepare
     from sanav_mj.scene import load_scenario
 
     out = {}
@@ -238,7 +238,8 @@ def mujoco_loops(solvers: list[str], seeds: int) -> dict:
     harness) with SA-MPC on each of ``solvers`` (taking turns episode by episode): outcomes
     and the per-step wall time (``solve_ms``) and CPU time of ``SAMPC.step``. Returns
     solver -> statistics."""
-    from sanav_mj.eval.episode import initial_pose, prepare, run_scenario
+    from sanav_mj.eval.episode import run_scenario
+    from sanav_mj.eval.prepare import initial_pose, prepare
     from sanav_mj.scene import load_scenario
 
     acc = {s: {"runs": [], "wall": [], "cpu": [], "turn": [], "statuses": {}} for s in solvers}

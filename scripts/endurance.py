@@ -29,7 +29,7 @@ def rss_mb() -> float:
 def endurance(scenario: str = "u_shape", minutes: float = 10.0, every_s: float = 60.0):
     """Run the long episode; returns a list of (sim_time_s, rss_mb) samples."""
     from sanav_mj.control.factory import make_controller
-    from sanav_mj.eval.episode import prepare
+    from sanav_mj.eval.prepare import prepare
     from sanav_mj.sim.plant import Plant
     from sanav_mj.sim.runner import RunConfig, run_episode
 

@@ -161,7 +161,8 @@ def ablation(scenario: str, runs: int) -> str:
     import numpy as np
 
     from sanav_mj.control.penalty_mpc import PenaltyConfig, PenaltyMPC
-    from sanav_mj.eval.episode import prepare, run_scenario
+    from sanav_mj.eval.episode import run_scenario
+    from sanav_mj.eval.prepare import prepare
 
     prep = prepare(scenario)
     sc = prep.scenario

@@ -95,7 +95,8 @@ def _plot(log, total_steps: int, path: Path, title: str, shipped_step: int) -> N
 def evaluate_builtin(out: Path, runs: int) -> dict:
     """Run the policy ``out/policy.npz`` on every built-in scenario for seeds 0..runs-1."""
     from sanav_mj.control.dqn import DQNController
-    from sanav_mj.eval.episode import prepare, run_scenario
+    from sanav_mj.eval.episode import run_scenario
+    from sanav_mj.eval.prepare import prepare
     from sanav_mj.resources import builtin_scenarios
 
     result: dict = {"policy": str(out / DEFAULT_POLICY_FILE), "runs_per_scenario": runs, "scenarios": {}}

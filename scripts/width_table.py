@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sanav_mj.eval.episode import planner_config
+from sanav_mj.eval.prepare import planner_config
 from sanav_mj.footprint import robot_footprint
 from sanav_mj.mapping import MapConfig, build_map
 from sanav_mj.planning import plan

@@ -9,7 +9,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from sanav_mj.eval.episode import Prepared
+from sanav_mj.eval.prepare import Prepared
 from sanav_mj.mapping.occupancy import OccupancyGrid
 from sanav_mj.mapping.quadtree import QuadtreeLeaves
 from sanav_mj.mapping.safe_areas import SafeAreaMap, SafeAreas

@@ -44,7 +44,7 @@ def test_the_documented_run_keys_are_those_of_a_real_run(mismatch):
 
 
 def test_the_documented_areas_keys_are_those_of_a_real_areas_document():
-    from sanav_mj.eval.episode import areas_document, prepare
+    from sanav_mj.eval.prepare import areas_document, prepare
 
     assert _documented("areas --json") == _keys(areas_document(prepare("u_shape")))
 

@@ -233,7 +233,7 @@ class MPCConfig(TrackingConfig):
             :class:`~sanav_mj.control.adaptation.AdaptationConfig`.
         footprint: how the robot's body enters the map and the constraints. ``"disc"``
             (default, the paper's): the map is inflated by the circumscribed radius plus
-            ``sanav_mj.eval.episode.DEFAULT_MARGIN_M`` and the predicted position (base
+            ``sanav_mj.eval.prepare.DEFAULT_MARGIN_M`` and the predicted position (base
             origin) must lie in the stage box. ``"discs"``: the footprint rectangle of the
             collision geoms (:func:`sanav_mj.footprint.robot_footprint`) is covered by
             ``footprint_discs`` discs of radius r_d along its long axis; the map is inflated
@@ -257,7 +257,7 @@ class MPCConfig(TrackingConfig):
             excursion measured is 2.8 cm nominal and 3.9 cm at the corner (below 0.04).
         footprint_narrow_penalty: [m] ``"discs"`` mode: added to the corridor search's weight
             of every edge through a place where the circumscribed-disc map has no room
-            (:func:`sanav_mj.eval.episode.planning_areas`), so the corridor keeps to passages
+            (:func:`sanav_mj.eval.prepare.planning_areas`), so the corridor keeps to passages
             where the robot can turn when they are not much longer; 0: shortest corridor.
         footprint_route: ``"discs"`` mode: where corridor and reference come from.
             ``"pose"``: a search over poses (x, y, yaw) whose disc centres stay in the safe
@@ -296,7 +296,7 @@ class MPCConfig(TrackingConfig):
             every safe area 2.8 cm; at the envelope corner 89 / 100, 0 collisions, largest
             excursion 3.9 cm, smallest true clearance 4.3 cm: within ``footprint_margin``
             both, by measurement (:mod:`sanav_mj.control.prediction` says which steps its
-            argument covers). Lidar runs use ``box_margin`` (:func:`sanav_mj.eval.episode.lidar_spec`).
+            argument covers). Lidar runs use ``box_margin`` (:func:`sanav_mj.eval.lidar.lidar_spec`).
         footprint_prediction: ``"discs"`` mode: derate the speed and yaw-rate bounds by the
             one-step prediction error of the disc centres measured online, and (its
             ``tighten``, on) shrink the disc rows' stage boxes by that error with a relaxation
@@ -306,7 +306,7 @@ class MPCConfig(TrackingConfig):
             ``"disc"`` mode.
         footprint_open_speed: ``"discs"`` mode with a known map: None (one reference speed
             everywhere, 0.8 of ``v_max``) or the reference's top speed in open space as a
-            fraction of the resolved ``v_max`` (:func:`sanav_mj.eval.episode.planner_config`,
+            fraction of the resolved ``v_max`` (:func:`sanav_mj.eval.prepare.planner_config`,
             :attr:`sanav_mj.planning.PlannerConfig.open_speed_fraction`): at path nodes whose
             centre has ``footprint_open_room`` of free inflated cells on every side; 0.8 of
             ``v_max`` elsewhere, slowing down before narrow places. Unused in ``"disc"`` mode

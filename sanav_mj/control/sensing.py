@@ -154,7 +154,7 @@ class SensingConfig:
         narrow_width: [m] ``MPCConfig.footprint="discs"``: the corridor search adds
             ``footprint_narrow_penalty`` per edge through a place narrower than this (where
             the circumscribed disc does not fit: ``2 (R + margin - inflation)`` counted in
-            whole cells, :func:`sanav_mj.eval.episode.sensed_narrow_width`;
+            whole cells, :func:`sanav_mj.eval.lidar.sensed_narrow_width`;
             :class:`~sanav_mj.control.sensed_footprint.SensedFootprint`); unused in
             ``"disc"`` mode. >= 0.
         refresh: ``extend`` replans also once the corridor reaches the goal (the safe areas
@@ -267,6 +267,12 @@ class SensingConfig:
             raise ValueError(f"SensingConfig.grow: expected a number in [0, 10] [m], got {self.grow!r}")
         if not isinstance(self.background_replan, bool):
             raise ValueError(f"SensingConfig.background_replan: expected True or False, got {self.background_replan!r}")
+
+
+def _with_free(areas: SafeAreas, free: FreeCells | None) -> SafeAreas:
+    """``areas`` carrying ``free`` (the planner's open-space speed reads it), or ``areas``
+    itself when ``free`` is None."""
+    return areas if free is None else replace(areas, free=free)
 
 
 def _growing(areas: SafeAreas, sensed: SensedMap, grow: float, tighten: float) -> SafeAreas:
@@ -698,19 +704,22 @@ class SensingSAMPC:
         if target is None:
             return None
         v0 = speed if moving else 0.0
+        # the open-space speed (PlannerConfig.open_speed_fraction) reads the cells safe in the
+        # sensed map now: unknown cells are never open
+        free = FreeCells.of(self.map.grid.safe_grid(), 0.0) if self.planner.open_speed_fraction is not None else None
         local = None
         if kept is not None and len(kept):
             g = self.map.grid
             k_areas, k_boxes = prefixed_areas(areas, boxes, kept, g.origin, g.resolution)
-            local = make_plan(self.body.planning_areas(k_areas), pose, target, self.robot, self.planner,
-                              start_speed=v0)
+            local = make_plan(_with_free(self.body.planning_areas(k_areas), free), pose, target, self.robot,
+                              self.planner, start_speed=v0)
             if local.ok and local.reference is not None and len(local.corridor):
                 areas, boxes = k_areas, k_boxes
             else:
                 local = None
         if local is None:
-            local = make_plan(self.body.planning_areas(areas), pose, target, self.robot, self.planner,
-                              start_speed=v0)
+            local = make_plan(_with_free(self.body.planning_areas(areas), free), pose, target, self.robot,
+                              self.planner, start_speed=v0)
         if not local.ok or local.reference is None or len(local.corridor) == 0:
             return None
         return _Planned(local, areas, boxes, route, np.asarray(target, dtype=float), reason,

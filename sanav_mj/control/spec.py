@@ -3,7 +3,7 @@
 A :class:`ControllerSpec` names the controller (one of :data:`CONTROLLER_NAMES`, the one list
 of names) and carries every configuration it may need. The CLI / Python API builds it once;
 :func:`sanav_mj.control.factory.make_controller`, the planner's settings
-(:func:`sanav_mj.eval.episode.planner_config`) and the plots
+(:func:`sanav_mj.eval.prepare.planner_config`) and the plots
 (:func:`sanav_mj.eval.plots.run_reference`) all read the same object instead of rebuilding
 defaults. Importing this module does not load CasADi.
 """

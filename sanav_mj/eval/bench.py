@@ -472,7 +472,7 @@ def run_bench(
             The rows, outputs and journal are the same either way.
         sensing: ``"map"`` or ``"lidar"`` for every run (lidar: SA-MPC only).
         footprint: SA-MPC's ``"disc"`` or ``"discs"`` for every run (``meta.json`` names it
-            when not ``"disc"``; :func:`sanav_mj.eval.episode.footprint_spec`).
+            when not ``"disc"``; :func:`sanav_mj.eval.prepare.footprint_spec`).
 
     Returns:
         The per (scenario, controller) summary rows (also written to ``table.md``); their

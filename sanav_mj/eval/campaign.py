@@ -72,7 +72,7 @@ class Job:
         rrd: optional recording path.
         tags: extra columns copied into the result row (e.g. the swept values).
         sensing: ``"map"`` or ``"lidar"`` (see :func:`sanav_mj.eval.episode.run_scenario`).
-        footprint: SA-MPC's ``"disc"`` or ``"discs"`` (:func:`sanav_mj.eval.episode.footprint_spec`).
+        footprint: SA-MPC's ``"disc"`` or ``"discs"`` (:func:`sanav_mj.eval.prepare.footprint_spec`).
     """
 
     scenario: str
@@ -149,7 +149,8 @@ _PREPARED: dict[tuple[str, str], Any] = {}
 
 def run_job(job: Job) -> dict[str, Any]:
     """Run one job in this process; returns the run JSON without its trace, plus the tags."""
-    from sanav_mj.eval.episode import footprint_spec, prepare, run_scenario
+    from sanav_mj.eval.episode import run_scenario
+    from sanav_mj.eval.prepare import footprint_spec, prepare
     from sanav_mj.sim.mismatch import parse_mismatch
 
     spec = footprint_spec(job.controller, job.footprint)

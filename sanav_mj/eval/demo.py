@@ -41,9 +41,10 @@ def run_demo(out: Path, record: bool = True, seed: int = 0, sensing: str = "map"
         record: also write the rerun recordings.
         seed: the seed of every run.
         sensing: ``"map"`` or ``"lidar"`` (see :func:`sanav_mj.eval.episode.run_scenario`).
-        footprint: SA-MPC's ``"disc"`` or ``"discs"`` (:func:`sanav_mj.eval.episode.footprint_spec`).
+        footprint: SA-MPC's ``"disc"`` or ``"discs"`` (:func:`sanav_mj.eval.prepare.footprint_spec`).
     """
-    from sanav_mj.eval.episode import footprint_spec, run_scenario
+    from sanav_mj.eval.episode import run_scenario
+    from sanav_mj.eval.prepare import footprint_spec
     from sanav_mj.eval.plots import plot_areas, plot_run
     from sanav_mj.outputs import write_text
     from sanav_mj.record import record_episode

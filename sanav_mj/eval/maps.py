@@ -2,7 +2,7 @@
 
 - :func:`ros_areas_document`: the ``areas --json`` document of a map alone (no start or goal:
   no corridor), on the map's own grid inflated by the packaged robot's footprint radius plus
-  :data:`~sanav_mj.eval.episode.DEFAULT_MARGIN_M` (unknown cells count as occupied).
+  :data:`~sanav_mj.eval.prepare.DEFAULT_MARGIN_M` (unknown cells count as occupied).
 - :func:`ros_scenario_xml` / :func:`scenario_from_ros_map`: a scenario MJCF made from the map
   (one box per merged block of occupied or unknown cells, the map's extent as the floor,
   the packaged robot) with a start and a goal given by the user, so every command that takes
@@ -44,7 +44,7 @@ def _robot_inflation() -> float:
     """[m] the packaged robot's footprint radius plus the known-map margin."""
     import mujoco
 
-    from sanav_mj.eval.episode import DEFAULT_MARGIN_M
+    from sanav_mj.eval.prepare import DEFAULT_MARGIN_M
     from sanav_mj.resources import robot_model_path
     from sanav_mj.scene import robot_params
 

@@ -165,7 +165,7 @@ def plot_areas(prep: Any, path: str | Path, dpi: int = 100) -> Path:
     the interpolated path (small purple, yellow polyline) and the smoothed reference (blue).
 
     Args:
-        prep: a :class:`~sanav_mj.eval.episode.Prepared` (scenario, grid, leaves, areas, plan).
+        prep: a :class:`~sanav_mj.eval.prepare.Prepared` (scenario, grid, leaves, areas, plan).
         path: output PNG.
         dpi: [pixel/inch]; the image is 1500 x 900 px at 100 dpi.
 
@@ -298,7 +298,7 @@ def run_reference(outcome: Any, steps: Sequence[int] = (0,)) -> RunReference:
       heading to the goal; the DQN policy sees the goal's distance and bearing).
 
     Args:
-        outcome: a :class:`~sanav_mj.eval.episode.RunOutcome`.
+        outcome: a :class:`~sanav_mj.eval.outcome.RunOutcome`.
         steps: control-step indices at which the ``"mpc"`` reference is drawn (indices
             outside the trace are ignored).
     """
@@ -343,7 +343,7 @@ def plot_run(outcome: Any, path: str | Path, n_footprints: int = 6, dpi: int = 1
     show commanded and measured v and w.
 
     Args:
-        outcome: a :class:`~sanav_mj.eval.episode.RunOutcome`.
+        outcome: a :class:`~sanav_mj.eval.outcome.RunOutcome`.
         path: output PNG.
         n_footprints: footprints drawn along the path (>= 0).
         dpi: [pixel/inch]; the image is 1500 x 750 px at 100 dpi.

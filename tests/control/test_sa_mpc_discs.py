@@ -168,7 +168,7 @@ def test_assignment_and_relaxation_with_several_points():
 
 def test_map_inflation_follows_the_footprint_mode():
     from sanav_mj.control.spec import ControllerSpec
-    from sanav_mj.eval.episode import DEFAULT_MARGIN_M, map_inflation
+    from sanav_mj.eval.prepare import DEFAULT_MARGIN_M, map_inflation
     from sanav_mj.scene import load_scenario
 
     sc = load_scenario("u_shape")
@@ -179,7 +179,7 @@ def test_map_inflation_follows_the_footprint_mode():
 
 def test_planning_areas_penalise_only_in_discs_mode():
     from sanav_mj.control.spec import ControllerSpec
-    from sanav_mj.eval.episode import planning_areas, prepare
+    from sanav_mj.eval.prepare import planning_areas, prepare
     from sanav_mj.scene import load_scenario
 
     sc = load_scenario("v_shape")

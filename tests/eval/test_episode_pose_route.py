@@ -1,4 +1,4 @@
-"""The discs mode's pose route in the run path (:func:`sanav_mj.eval.episode.footprint_route_plan`)."""
+"""The discs mode's pose route in the run path (:func:`sanav_mj.eval.prepare.footprint_route_plan`)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 
 from sanav_mj.control.config import MPCConfig
 from sanav_mj.control.spec import ControllerSpec
-from sanav_mj.eval.episode import footprint_route_plan
+from sanav_mj.eval.prepare import footprint_route_plan
 from sanav_mj.mapping.occupancy import OccupancyGrid
 from sanav_mj.planning.reference import Plan, Reference
 from sanav_mj.scene import load_scenario

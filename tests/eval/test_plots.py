@@ -12,7 +12,8 @@ import pytest
 
 from _helpers import make_prep
 
-from sanav_mj.eval.episode import Prepared, RunOutcome
+from sanav_mj.eval.outcome import RunOutcome
+from sanav_mj.eval.prepare import Prepared
 from sanav_mj.eval import plots
 from sanav_mj.eval.plots import plot_areas, plot_heatmap, plot_run, plot_success_bars, run_reference
 from sanav_mj.mapping.quadtree import QuadtreeLeaves

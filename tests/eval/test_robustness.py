@@ -271,7 +271,7 @@ def test_jitter_spreads_the_control_period(open_floor):
 
 def test_solve_budget_reaches_the_solver():
     from sanav_mj.control.factory import make_controller
-    from sanav_mj.eval.episode import prepare
+    from sanav_mj.eval.prepare import prepare
 
     prep = prepare("single_rect")
     ctrl = make_controller("sa-mpc", prep.scenario, prep.grid, prep.areas, prep.plan, solve_budget_ms=0.5)

@@ -17,8 +17,9 @@ import pytest
 
 from _helpers import cells_of_box
 from sanav_mj.control.prediction import PredictionDerating
-from sanav_mj.eval.episode import (DEFAULT_MARGIN_M, footprint_spec, lidar_cell, lidar_controller, lidar_spec,
-                                   prepare, run_scenario)
+from sanav_mj.eval.episode import run_scenario
+from sanav_mj.eval.lidar import lidar_cell, lidar_controller, lidar_spec
+from sanav_mj.eval.prepare import DEFAULT_MARGIN_M, footprint_spec, prepare
 from sanav_mj.footprint import robot_footprint
 from sanav_mj.scene import load_scenario
 
@@ -156,9 +157,9 @@ def test_discs_lidar_refuses_or_drops_known_map_only_settings():
     assert grown.sa_mpc.footprint_box_margin == 0.0 and used.footprint_box_margin == grown.sa_mpc.box_margin == 0.02
     # and the derating it was measured with (stop 0.03; the known map's 0.02 stalled complex/2)
     assert grown.sa_mpc.footprint_prediction.stop == 0.02 and used.footprint_prediction.stop == 0.03
-    # the open-space speed is a known-map setting (not measured with the lidar)
-    assert grown.sa_mpc.footprint_open_speed is not None and used.footprint_open_speed is None
-    assert used == replace(grown.sa_mpc, footprint_box_margin=0.02, footprint_open_speed=None,
+    # the open-space speed is kept: the lidar plans read it from the sensed safe cells
+    assert used.footprint_open_speed == grown.sa_mpc.footprint_open_speed == 1.0
+    assert used == replace(grown.sa_mpc, footprint_box_margin=0.02,
                            footprint_prediction=replace(grown.sa_mpc.footprint_prediction, tighten=False, stop=0.03))
     # a larger stop (a gentler derating) is kept; the tightening still goes
     own = replace(grown, sa_mpc=replace(grown.sa_mpc, footprint_prediction=PredictionDerating(stop=0.05)))
@@ -183,6 +184,32 @@ def _first_plan(grow: float):
     ctrl.step(Observation(t=0.0, pose=np.zeros(3), velocity=np.zeros(2), scan=scan))
     assert ctrl.mpc is not None and ctrl.records[0].replan == "initial"
     return ctrl
+
+
+def test_discs_lidar_plans_at_the_open_space_speed_only_where_the_sensed_map_is_open():
+    from dataclasses import replace
+
+    ctrl = _first_plan(1.0)  # open sensed space 3 m around the robot
+    lim = DISCS.sa_mpc.limits(load_scenario("single_rect").robot)
+    v = np.asarray(ctrl.mpc.plan.reference.inputs)[:, 0]
+    assert ctrl.planner.open_speed_fraction is not None
+    assert v.max() > 0.8 * lim.v_max + 0.05  # above the narrow-place cap: the open speed applied
+    assert v.max() <= lim.v_max + 1e-9
+    # without the option the same plan stays at 0.8 of the MPC's v_max
+    spec = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_grow=1.0, footprint_refine=1, footprint_open_speed=None))
+    from types import SimpleNamespace
+
+    from sanav_mj.control.base import Observation
+
+    other = lidar_controller(load_scenario("single_rect"), spec)
+    other.reset(np.zeros(3))
+    a = np.linspace(-math.pi, math.pi, 720, endpoint=False)
+    other.step(Observation(t=0.0, pose=np.zeros(3), velocity=np.zeros(2),
+                           scan=SimpleNamespace(ranges=np.full(720, 3.0), hit=np.zeros(720, bool), angles=a)))
+    v_slow = np.asarray(other.mpc.plan.reference.inputs)[:, 0]
+    assert v_slow.max() == pytest.approx(0.8 * lim.v_max, rel=1e-3)
+    # with the room of open space only inside the scanned disc, the reference is at rest at its end
+    assert v[-1] == pytest.approx(0.0, abs=1e-9)
 
 
 def _contains(outer, inner):
@@ -278,7 +305,7 @@ def test_discs_lidar_brakes_keeping_its_heading():
     (-0.01, 0.05, 0.0),
 ])
 def test_sensed_narrow_width_counts_whole_cells(lost, resolution, width):
-    from sanav_mj.eval.episode import sensed_narrow_width
+    from sanav_mj.eval.lidar import sensed_narrow_width
 
     assert sensed_narrow_width(lost, resolution) == pytest.approx(width, abs=4 * np.finfo(float).eps)
 
@@ -287,7 +314,7 @@ def test_discs_lidar_controller_narrow_width():
     sc = load_scenario("single_rect")
     from dataclasses import replace
 
-    from sanav_mj.eval.episode import sensed_narrow_width
+    from sanav_mj.eval.lidar import sensed_narrow_width
 
     # at margin 0.05 m: 0.330 + 0.05 - (0.2305 + 0.05) = 0.0985 m lost, strips of up to 4 cells narrow
     m05 = replace(DISCS, sa_mpc=replace(DISCS.sa_mpc, footprint_margin=0.05, footprint_refine=1))  # 0.05 m cells
@@ -322,7 +349,7 @@ def test_scan_matcher_reaches_as_far_in_metres_on_the_finer_sensed_cells():
     counts the turn on the spot at the start of single_rect seed 3 (an open room: few returns)
     gave only ``few_points`` matches, its scans were not added and the robot turned for 7 s
     before its first plan; with them the matches are used and it plans after 2.2 s."""
-    from sanav_mj.eval.episode import lidar_match
+    from sanav_mj.eval.lidar import lidar_match
     from sanav_mj.mapping.scan_match import ScanMatchConfig
 
     base = ScanMatchConfig()

@@ -16,7 +16,9 @@ import pytest
 from _helpers import cells_of_box
 from sanav_mj.control.sensing import SensingConfig, SensingSAMPC
 from sanav_mj.mapping.live_grid import OCCUPIED
-from sanav_mj.eval.episode import DEFAULT_MARGIN_M, lidar_controller, prepare, run_scenario
+from sanav_mj.eval.episode import run_scenario
+from sanav_mj.eval.lidar import lidar_controller
+from sanav_mj.eval.prepare import DEFAULT_MARGIN_M, prepare
 from sanav_mj.scene import load_scenario
 
 

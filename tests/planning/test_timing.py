@@ -94,7 +94,7 @@ def test_speed_profile_from_a_start_speed_exact():
 
 def test_plan_rejects_a_negative_start_speed():
     from sanav_mj.planning import plan
-    from sanav_mj.eval.episode import prepare
+    from sanav_mj.eval.prepare import prepare
 
     prep = prepare("single_rect")
     with pytest.raises(ValueError, match="start_speed"):
