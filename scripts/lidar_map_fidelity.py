@@ -35,7 +35,9 @@ import numpy as np
 from scipy import ndimage
 
 from sanav_mj.control.config import MPCConfig
-from sanav_mj.eval.episode import ControllerSpec, lidar_cell, lidar_spec, map_inflation
+from sanav_mj.eval.lidar import lidar_cell, lidar_spec
+from sanav_mj.control.spec import ControllerSpec
+from sanav_mj.eval.prepare import map_inflation
 from sanav_mj.mapping.live_grid import FREE, LiveGrid, LiveGridConfig
 from sanav_mj.mapping.occupancy import rasterise
 from sanav_mj.scene import load_scenario
