@@ -14,7 +14,8 @@ sensed grid is then compared with the true occupancy rasterised from the geoms
   ``mat_free_far``: those of them with no non-free 8-neighbour (not covered by one cell of
   extra inflation);
 * ``unsafe``: cells the sensed grid calls safe whose square is within the inflation of an
-  obstacle (the known-map rule; must be 0: the guarantee);
+  obstacle (the known-map rule; must be 0: the guarantee); ``short_mm``: by how much the
+  inflation would have to shrink for none to be (0.5 mm steps);
 * ``safe``: safe cells (the known map's free cells on the observed region for comparison:
   ``known``); ``flips``: safe-state changes per scan over the second half of the path
   (the flicker: safe cells lost per scan).
@@ -139,9 +140,12 @@ def measure(xml: str, step: float, seed: int, configs: dict) -> dict:
         depth = ndimage.distance_transform_edt(~nf) * (h / fine)  # to the nearest non-free fine cell
         inside = mat_f & ~nf
         depth_m = float(depth[inside].max()) if inside.any() else 0.0
+        short = 0.0  # [m] how much less inflation the safe cells keep from the obstacles (0.5 mm steps)
+        while np.any(safe & rasterise(sc.obstacles, sc.bounds, h, inflation=infl - short).occupied):
+            short += 0.0005
         out[k] = {"fat_0": int((~material & seen & nonfree).sum()), "fat_1": int((far[0] & seen & nonfree).sum()), "fat_2": int((far[1] & seen & nonfree).sum()),
                   "fat_3": int((far[2] & seen & nonfree).sum()), "mat_free": int(mf.sum()),
-                  "mat_free_far": int((mf & ~nb).sum()), "depth_mm": round(1000 * depth_m, 1), "unsafe": int((safe & known.occupied).sum()),
+                  "mat_free_far": int((mf & ~nb).sum()), "depth_mm": round(1000 * depth_m, 1), "unsafe": int((safe & known.occupied).sum()), "short_mm": round(1000 * short, 1),
                   "safe": int(safe.sum()), "known": int((free & seen).sum()),
                   "flips": round(flips[k] / max(1, len(ss) - half), 1)}
     return out
