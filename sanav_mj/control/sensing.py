@@ -93,7 +93,11 @@ class SensingConfig:
             fewer beams halve the map update's work, at the price of gaps between far beams
             that later scans fill (safety is unaffected: fewer observations mean less known
             free space, never more), integer >= 1.
-        scan_turn_rate: [rad/s] yaw rate of the turn on the spot before the first plan, > 0.
+        scan_turn_rate: [rad/s] yaw rate of the turn on the spot before the first plan, > 0;
+            the turn goes towards the goal's bearing (the plan that follows starts closer to
+            its heading). 2 rad/s (was 1): with the turn towards the goal, the 13 runs that
+            reached the goal among the five paper scenarios and barn_0000-0009 (seed 0,
+            discs) took 159 s in all against 185 s (2026-11-25).
         max_scan_turn_s: [s] give up turning after this long (the run then ends as stuck
             or timed out without a plan), > 0.
         background_replan: ``extend`` and ``route`` replans (the corridor being followed is
@@ -200,7 +204,7 @@ class SensingConfig:
 
     replan_interval: int = 5
     beam_stride: int = 1
-    scan_turn_rate: float = 1.0
+    scan_turn_rate: float = 2.0
     max_scan_turn_s: float = 8.0
     background_replan: bool = False
     map: SensedMapConfig = field(default_factory=SensedMapConfig)
@@ -482,6 +486,7 @@ class SensingSAMPC:
         self._grown = False
         self._turn_steps = 0
         self._turn_w = 0.0
+        self._turn_sign = 1.0
         self._mpc_fresh = True
         if self.mpc is not None:
             self.mpc.reset(np.asarray(pose, dtype=float).reshape(3))
@@ -773,8 +778,14 @@ class SensingSAMPC:
 
     def _scan_turn(self, obs: Observation) -> Command:
         """Turn on the spot (the body stays in the disc it occupies) to see around the robot."""
+        if self._turn_steps == 0:
+            # turn towards the goal's bearing: the plan that follows starts closer to its heading
+            bearing = math.atan2(self.goal[1] - float(obs.pose[1]), self.goal[0] - float(obs.pose[0]))
+            err = math.remainder(bearing - float(obs.pose[2]), math.tau) if np.all(np.isfinite(obs.pose)) else 0.0
+            self._turn_sign = -1.0 if err < 0 else 1.0
         self._turn_steps += 1
-        target = 0.0 if self._turn_steps * self.dt > self.config.max_scan_turn_s else self.config.scan_turn_rate
+        rate = self._turn_sign * self.config.scan_turn_rate
+        target = 0.0 if self._turn_steps * self.dt > self.config.max_scan_turn_s else rate
         step = self.robot.alpha_max * self.dt  # within the yaw-rate rate bound of the MPC that follows
         w = float(np.clip(target, self._turn_w - step, self._turn_w + step))
         self._turn_w = w

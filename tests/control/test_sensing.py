@@ -69,6 +69,27 @@ def test_turns_on_the_spot_until_its_own_position_is_observed_safe():
     assert len(ctrl2.records[0].corridor_rects) == 0
 
 
+@pytest.mark.parametrize("yaw, sign", [(0.86, -1.0), (-0.5, 1.0), (np.pi - 0.1, -1.0), (-np.pi + 0.1, 1.0)])
+def test_the_turn_on_the_spot_goes_towards_the_goal(yaw, sign):
+    """The scan turn before the first plan turns towards the goal's bearing (the goal is
+    straight ahead along +x of the origin here), at the yaw-rate rate bound up to
+    ``scan_turn_rate``, and keeps its direction."""
+    sc, ctrl = _ctrl()
+    ctrl.reset(np.array([0.0, 0.0, yaw]))
+    blind = _wall_scan(2.0)
+    blind.hit[:] = False
+    blind.ranges[:] = 0.05  # sees nothing: keeps turning
+    ws = []
+    for k in range(12):
+        cmd = ctrl.step(Observation(t=0.1 * k, pose=np.array([0.0, 0.0, yaw]), velocity=np.zeros(2), scan=blind))
+        assert ctrl.mpc is None and cmd.status == "scan_turn"
+        ws.append(cmd.w)
+    ws = np.array(ws)
+    assert np.all(sign * ws > 0)
+    step = sc.robot.alpha_max * ctrl.dt
+    assert np.allclose(np.abs(ws), np.minimum(step * np.arange(1, 13), ctrl.config.scan_turn_rate), atol=1e-12)
+
+
 @pytest.mark.parametrize("kwargs", [{"replan_interval": 0}, {"beam_stride": 0}, {"scan_turn_rate": -1.0},
                                     {"max_scan_turn_s": float("inf")}, {"replan_interval": True},
                                     {"controller_pose": "true"}, {"pose_bound": (0.03, -1.0)},
