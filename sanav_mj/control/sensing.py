@@ -380,6 +380,40 @@ class _Worker:
         jobs.put(None)
 
 
+def grid_cells(g, pts: np.ndarray) -> np.ndarray:
+    """(P,) int64 flat indices ``i * nx + j`` of the cells of the points ``pts`` (P, 2) [m]
+    of the grid ``g`` (``shape``, ``origin``, ``resolution``), clamped to the grid."""
+    ny, nx = g.shape
+    if len(pts) <= 4:
+        # a few points (the robot's own): the same arithmetic on Python floats (IEEE
+        # doubles, as NumPy's), without a dozen array calls
+        ox, oy = float(g.origin[0]), float(g.origin[1])
+        h = float(g.resolution)
+        flat = pts.ravel().tolist()
+        if all(abs(v) < 1e15 for v in flat):  # finite and far inside int64 after floor
+            return np.array([min(max(math.floor((y - oy) / h), 0), ny - 1) * nx
+                             + min(max(math.floor((x - ox) / h), 0), nx - 1)
+                             for x, y in zip(flat[0::2], flat[1::2])], dtype=np.int64)
+    j = np.clip(np.floor((pts[:, 0] - g.origin[0]) / g.resolution).astype(np.int64), 0, nx - 1)
+    i = np.clip(np.floor((pts[:, 1] - g.origin[1]) / g.resolution).astype(np.int64), 0, ny - 1)
+    return i * nx + j
+
+
+def in_ok_cells(g, pts: np.ndarray, ok_at) -> np.ndarray:
+    """(P,) bool: each point (P, 2) [m] lies in a cell of the grid ``g`` that ``ok_at`` (flat
+    cell indices -> bool) accepts, cells taken as closed squares (a point on a cell edge,
+    where the planner's closed rectangles put samples, counts for either side)."""
+    ny, nx = g.shape
+    e = 1e-6 * g.resolution
+    # the cells of the four points shifted by (+-e, +-e): column and row for both signs
+    # at once (the same arithmetic as grid_cells on each shifted point), one lookup for all four
+    shift = np.array([[-e], [e]])
+    j = np.clip(np.floor((pts[:, 0] + shift - g.origin[0]) / g.resolution).astype(np.int64), 0, nx - 1)
+    i = np.clip(np.floor((pts[:, 1] + shift - g.origin[1]) / g.resolution).astype(np.int64), 0, ny - 1)
+    cells = i[:, None, :] * nx + j[None, :, :]  # (2, 2, P): (row sign, column sign, point)
+    return ok_at(cells.ravel()).reshape(4, len(pts)).any(axis=0)
+
+
 class SensingSAMPC:
     """SA-MPC driving on the map its lidar builds (the Controller protocol).
 
@@ -470,9 +504,8 @@ class SensingSAMPC:
             self._start_worker()  # here, before the loop
         self.map = SensedMap(self.bounds, self.inflation, self.sensor_offset, self.config.map)
         self.localiser = ScanLocaliser(self.config, pose)
-        self._areas: SafeAreas | None = None
-        self._boxes = np.zeros((0, 4), dtype=np.int64)
-        self.plan_boxes = self._boxes
+        self._scanned = False  # a scan has been added: the map's safe areas are the current ones
+        self.plan_boxes = np.zeros((0, 4), dtype=np.int64)
         self._have_route = False  # route areas exist (after the first scan, when kept)
         self._route_dirty = True  # route or route grid changed since the route was last found clear
         self._corridor_rects = np.zeros((0, 4))
@@ -494,8 +527,10 @@ class SensingSAMPC:
 
     @property
     def areas(self) -> SafeAreas | None:
-        """The current safe areas (observed free space), None before the first scan."""
-        return self._areas
+        """The current safe areas (observed free space), None before the first scan. The
+        map's compact snapshot of them is taken when read (the step itself reads them only
+        to plan)."""
+        return self.map.areas_now() if self._scanned else None
 
     @property
     def estimate(self) -> np.ndarray:
@@ -538,18 +573,17 @@ class SensingSAMPC:
             t0 = time.perf_counter()
             changed = False
             if self.mpc is None or not self._own_safe(pose):
-                fp = self._clear_body(pose)
+                fp = self._clear_body(pose)  # the safe snapshot too only when read (to plan)
                 changed, self._route_dirty = fp.changed, self._route_dirty or fp.route_changed
             k = self.config.beam_stride
             # the route areas are needed only to plan: their snapshot is taken in _compute
             if add_scan:
                 up = self.map.integrate(pose, obs.scan.ranges[::k], obs.scan.hit[::k], obs.scan.angles[::k],
-                                        route_snapshot=False)
+                                        route_snapshot=False, snapshot=False)
                 changed = up.changed or changed
                 self._route_dirty = self._route_dirty or up.route_changed
             map_ms = (time.perf_counter() - t0) * 1e3 + loc_ms
-            self._areas = self.map.areas_now()
-            self._boxes = self.map.boxes_now()
+            self._scanned = True
             self._have_route = self.map.route is not None
             self._grown = self._grown or changed
         self._since_plan += 1
@@ -619,12 +653,13 @@ class SensingSAMPC:
         areas changed, ``route_changed``: a route cell changed)."""
         fp = self.config.footprint
         if fp is None:
-            return self.map.clear_footprint(pose, self.robot.footprint_radius, route_snapshot=False)
+            return self.map.clear_footprint(pose, self.robot.footprint_radius, route_snapshot=False, snapshot=False)
         shrink = self.config.pose_bound[0] + fp.circumradius * self.config.pose_bound[1]
-        return self.map.clear_box(pose, (fp.xmin, fp.xmax, fp.ymin, fp.ymax), shrink, route_snapshot=False)
+        return self.map.clear_box(pose, (fp.xmin, fp.xmax, fp.ymin, fp.ymax), shrink, route_snapshot=False,
+                                  snapshot=False)
 
     def _replan_reason(self, changed: bool, pose: np.ndarray) -> str | None:
-        if self._areas is None or not np.all(np.isfinite(pose)):
+        if not self._scanned or not np.all(np.isfinite(pose)):
             return None
         if self.mpc is None or self.local_goal is None:
             # the first plan waits until the robot's own position is observed safe (or the
@@ -647,33 +682,10 @@ class SensingSAMPC:
     def _own_safe(self, pose: np.ndarray) -> bool:
         """Whether the robot's own points (its position; ``"discs"``: every disc centre) at
         ``pose`` (3,) [m, m, rad] lie in safe cells."""
-        return bool(self.map.grid.safe_at(self._cells(self.body.own_points(pose))).all())
-
-    def _cells(self, pts: np.ndarray) -> np.ndarray:
-        g = self.map.grid
-        ny, nx = g.shape
-        j = np.clip(np.floor((pts[:, 0] - g.origin[0]) / g.resolution).astype(np.int64), 0, nx - 1)
-        i = np.clip(np.floor((pts[:, 1] - g.origin[1]) / g.resolution).astype(np.int64), 0, ny - 1)
-        return i * nx + j
-
-    def _in_ok_cells(self, pts: np.ndarray, ok_at) -> np.ndarray:
-        """(P,) bool: each point (P, 2) [m] lies in a cell that ``ok_at`` accepts, cells taken
-        as closed squares (a point on a cell edge, where the planner's closed rectangles put
-        samples, counts for either side)."""
-        g = self.map.grid
-        ny, nx = g.shape
-        e = 1e-6 * g.resolution
-        # the cells of the four points shifted by (+-e, +-e): column and row once per sign
-        # (the same arithmetic as _cells on each shifted point), one lookup for all four
-        j = [np.clip(np.floor((pts[:, 0] + dx - g.origin[0]) / g.resolution).astype(np.int64), 0, nx - 1)
-             for dx in (-e, e)]
-        i = [np.clip(np.floor((pts[:, 1] + dy - g.origin[1]) / g.resolution).astype(np.int64), 0, ny - 1)
-             for dy in (-e, e)]
-        cells = np.concatenate([i[0] * nx + j[0], i[1] * nx + j[0], i[0] * nx + j[1], i[1] * nx + j[1]])
-        return ok_at(cells).reshape(4, len(pts)).any(axis=0)
+        return bool(self.map.grid.safe_at(grid_cells(self.map.grid, self.body.own_points(pose))).all())
 
     def _route_clear(self) -> bool:
-        return bool(self._in_ok_cells(self.route, self.map.grid.route_safe_at).all())
+        return bool(in_ok_cells(self.map.grid, self.route, self.map.grid.route_safe_at).all())
 
     def _plan_inputs(self, pose: np.ndarray, speed: float, reason: str) -> tuple:
         """Everything :meth:`_compute` reads that the control thread changes later (the map
@@ -683,7 +695,8 @@ class SensingSAMPC:
             g = self.map.grid
             pts = np.vstack([pose[None, :2], self._predicted[1:, :2]])
             kept = kept_prefix(self._plain_rects, pts, g.blocked, g.origin, g.resolution)
-        return (pose.copy(), speed, reason, self._areas, self._boxes, self._have_route, self.mpc is not None, kept)
+        return (pose.copy(), speed, reason, self.map.areas_now(), self.map.boxes_now(), self._have_route,
+                self.mpc is not None, kept)
 
     def _compute(self, pose: np.ndarray, speed: float, reason: str, areas: SafeAreas, boxes: np.ndarray,
                  have_route: bool, moving: bool, kept: np.ndarray | None = None) -> _Planned | None:
@@ -745,7 +758,7 @@ class SensingSAMPC:
         the whole route is safe); None when the route does not start in safe cells."""
         if route is None:
             return self.goal.copy()
-        safe = self._in_ok_cells(route, self.map.grid.safe_at)
+        safe = in_ok_cells(self.map.grid, route, self.map.grid.safe_at)
         if safe.all():
             return self.goal.copy()
         first = int(np.argmax(safe))

@@ -154,7 +154,7 @@ class MatchResult:
 
 
 def scan_points(ranges, hit, angles, sensor_offset=(0.0, 0.0), max_points: int | None = None,
-                stencil: int = 3, max_gap: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+                stencil: int = 3, max_gap: float = 0.3, use_kernel: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """The return points of a scan in the robot base frame, with the scan's own surface normals.
 
     A return's normal is perpendicular to the chord between the returns ``stencil`` beams
@@ -170,25 +170,35 @@ def scan_points(ranges, hit, angles, sensor_offset=(0.0, 0.0), max_points: int |
         max_points: keep at most this many, evenly spread over the returns (None: all).
         stencil: [beams] half width of the normal's chord, >= 1.
         max_gap: [m] chord allowance beyond ``3 r dphi``, > 0.
+        use_kernel: False forces the NumPy reference (else the compiled loop of
+            :func:`~sanav_mj.mapping.match_kernel.scan_surface` when available and the
+            arrays have the same length; the same results, bit for bit).
 
     Returns:
         points: (P, 2) [m] x forward, y left; normals: (P, 2) unit vectors.
     """
     r = np.asarray(ranges, dtype=float)
     a = np.asarray(angles, dtype=float)
-    good = np.asarray(hit, dtype=bool) & np.isfinite(r) & np.isfinite(a)
     off = np.asarray(sensor_offset, dtype=float).reshape(2)
-    px = off[0] + np.where(good, r, 0.0) * np.cos(a)
-    py = off[1] + np.where(good, r, 0.0) * np.sin(a)
     k = int(stencil)
-    n = len(r)
-    idx = np.arange(k, n - k)
-    tx = px[idx + k] - px[idx - k]
-    ty = py[idx + k] - py[idx - k]
-    length = np.hypot(tx, ty)
-    limit = max_gap + 3.0 * np.where(good[idx], r[idx], 0.0) * np.abs(a[idx + k] - a[idx - k])
-    ok = good[idx] & good[idx + k] & good[idx - k] & (length <= limit) & (length > 0)
-    idx, tx, ty, length = idx[ok], tx[ok], ty[ok], length[ok]
+    hit = np.asarray(hit, dtype=bool)
+    fast = None
+    if use_kernel and r.ndim == a.ndim == hit.ndim == 1 and len(r) == len(a) == len(hit):
+        fast = match_kernel.scan_surface(r, a, hit, off, k, float(max_gap))
+    if fast is not None:
+        px, py, idx, tx, ty, length = fast
+    else:
+        good = hit & np.isfinite(r) & np.isfinite(a)
+        px = off[0] + np.where(good, r, 0.0) * np.cos(a)
+        py = off[1] + np.where(good, r, 0.0) * np.sin(a)
+        n = len(r)
+        idx = np.arange(k, n - k)
+        tx = px[idx + k] - px[idx - k]
+        ty = py[idx + k] - py[idx - k]
+        length = np.hypot(tx, ty)
+        limit = max_gap + 3.0 * np.where(good[idx], r[idx], 0.0) * np.abs(a[idx + k] - a[idx - k])
+        ok = good[idx] & good[idx + k] & good[idx - k] & (length <= limit) & (length > 0)
+        idx, tx, ty, length = idx[ok], tx[ok], ty[ok], length[ok]
     if max_points is not None and len(idx) > max_points:
         pick = np.linspace(0, len(idx) - 1, max_points).round().astype(np.int64)
         idx, tx, ty, length = idx[pick], tx[pick], ty[pick], length[pick]
@@ -234,6 +244,7 @@ class LikelihoodField:
         self._sy = np.zeros(self._S.size)
         self._n = np.zeros(self._S.size, dtype=np.int64)
         self._hit = np.zeros(self._S.size, dtype=bool)
+        self._mark = np.zeros(self._S.size, dtype=np.uint8)  # scratch of the compiled spreading (zeroed)
         r = int(radius_cells)
         di, dj = np.mgrid[-r:r + 1, -r:r + 1]
         keep = di * di + dj * dj <= r * r
@@ -242,16 +253,33 @@ class LikelihoodField:
         self._inv2s2 = 1.0 / (2.0 * sigma * sigma)
         self.count = 0
 
-    def add_points(self, pts) -> int:
+    def add_points(self, pts, use_kernel: bool = True) -> int:
         """Add return points: each cell's hit point is the mean of the returns that landed in it.
 
         Args:
             pts: (P, 2) [m] world positions of returns (points outside the grid are ignored).
+            use_kernel: False forces the NumPy reference for the sums, counts and new cells
+                (else the compiled loop of :func:`~sanav_mj.mapping.match_kernel.accumulate`
+                when available; the same results, bit for bit).
 
         Returns:
             The number of new hit cells.
         """
         p = np.asarray(pts, dtype=float).reshape(-1, 2)
+        new = match_kernel.accumulate(self, p) if use_kernel else None
+        if new is None:
+            new = self._accumulate(p)
+        if not new.size:
+            return 0
+        if not (use_kernel and match_kernel.spread(self, new)):
+            self._spread_values(new)
+        self.count += int(new.size)
+        return int(new.size)
+
+    def _accumulate(self, p: np.ndarray) -> np.ndarray:
+        """NumPy reference of :func:`~sanav_mj.mapping.match_kernel.accumulate`: sums, counts
+        and hit points of the cells the (P, 2) [m] points ``p`` land in; returns the padded
+        flat indices of the cells hit for the first time (sorted), now marked hit."""
         ny, nx = self.shape
         h = self.resolution
         j = np.floor((p[:, 0] - self.origin[0]) / h).astype(np.int64)
@@ -260,7 +288,7 @@ class LikelihoodField:
         flat = (i[inside] + self.pad) * self._pw + (j[inside] + self.pad)
         p = p[inside]
         if not flat.size:
-            return 0
+            return np.zeros(0, np.int64)
         np.add.at(self._sx, flat, p[:, 0])
         np.add.at(self._sy, flat, p[:, 1])
         np.add.at(self._n, flat, 1)
@@ -268,9 +296,14 @@ class LikelihoodField:
         self._px[cells] = self._sx[cells] / self._n[cells]
         self._py[cells] = self._sy[cells] / self._n[cells]
         new = cells[~self._hit[cells]]
-        if not new.size:
-            return 0
         self._hit[new] = True
+        return new
+
+    def _spread_values(self, new: np.ndarray) -> None:
+        """Spread the hit points of the ``new`` (K,) hit cells (padded flat indices, sorted)
+        over the cells within reach (the field ``S`` and ``values``); NumPy reference of
+        :func:`~sanav_mj.mapping.match_kernel.spread`."""
+        h = self.resolution
         i, j = np.divmod(new, self._pw)
         ki, kj = self._kij
         ci = (i[:, None] + ki[None, :]).ravel()  # padded rows / columns of the cells around
@@ -283,8 +316,6 @@ class LikelihoodField:
         np.add.at(self._S, idx, np.exp(-d2 * self._inv2s2))
         u = np.unique(idx)
         self.values.reshape(-1)[u] = 1.0 - np.exp(-self._S[u])
-        self.count += int(new.size)
-        return int(new.size)
 
     def _cell(self, pts: np.ndarray) -> np.ndarray:
         """Padded flat cell index of (..., 2) [m] points (clamped to stay ``radius`` inside the

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sanav_mj.mapping import rect_kernel
 from sanav_mj.mapping.incremental import IncrementalSafeAreas
 from sanav_mj.mapping.live_grid import LiveGrid, LiveGridConfig
 from sanav_mj.mapping.safe_areas import SafeAreas
@@ -64,21 +65,22 @@ class SensedUpdate:
         changed: whether any cell's safe state changed (the safe areas may differ).
         n_state_changed: cells whose unknown / free / occupied state changed.
         n_safe_changed: cells whose safe state changed.
-        boxes: (R, 4) int64 cell boxes of the safe areas, sorted by ``(i0, j0)``.
-        areas: the safe areas and their graph (world metres).
+        boxes: (R, 4) int64 cell boxes of the safe areas, sorted by ``(i0, j0)`` (None when
+            the update was asked without the snapshot: :meth:`SensedMap.areas_now`).
+        areas: the safe areas and their graph (world metres; None as ``boxes``).
         route_changed: whether any cell's route state changed.
         route_boxes, route_areas: the route areas (``None`` when the map keeps none, or
             when the update was asked without them: :meth:`SensedMap.route_areas`).
         timing_ms: [ms] ``map`` (grid update and inflation), ``areas`` (incremental
-            quadtree / merge / graph), ``snapshot`` (compact arrays), ``route`` (the same two
+            quadtree / merge / graph), ``snapshot`` (compact arrays; only when asked for), ``route`` (the same two
             for the route areas; the snapshot only when asked for), ``total``.
     """
 
     changed: bool
     n_state_changed: int
     n_safe_changed: int
-    boxes: np.ndarray
-    areas: SafeAreas
+    boxes: np.ndarray | None
+    areas: SafeAreas | None
     timing_ms: dict[str, float]
     route_changed: bool = False
     route_boxes: np.ndarray | None = None
@@ -105,6 +107,7 @@ class SensedMap:
         self.grid = LiveGrid(bounds, config.resolution, inflation, config.grid)
         self.areas = IncrementalSafeAreas(self.grid.safe_grid(), config.min_cell, config.tile)
         self._snapshot = self.areas.safe_areas()
+        self._safe_stale = False  # safe areas updated since the last safe snapshot
         self.route = (IncrementalSafeAreas(self.grid.route_grid(), config.min_cell, config.tile)
                       if config.route else None)
         self._route_snapshot = self.route.safe_areas() if self.route is not None else (None, None)
@@ -134,7 +137,8 @@ class SensedMap:
             pts, normals = pts[:0], normals[:0]
         return self.matcher.match(prior, pts, normals, anchor, anchor_sigma, check)
 
-    def integrate(self, pose, ranges, hit, angles, route_snapshot: bool = True) -> SensedUpdate:
+    def integrate(self, pose, ranges, hit, angles, route_snapshot: bool = True, snapshot: bool = True
+                  ) -> SensedUpdate:
         """Add one scan taken at the measured robot pose.
 
         Args:
@@ -145,6 +149,9 @@ class SensedMap:
             route_snapshot: also return the route areas (``route_boxes``, ``route_areas``);
                 False leaves them None in the result (the route areas are still updated;
                 :meth:`route_areas` gives them when needed, e.g. only at replans).
+            snapshot: also return the safe areas' compact snapshot (``boxes``, ``areas``);
+                False leaves them None in the result (the safe areas are still updated;
+                :meth:`areas_now` and :meth:`boxes_now` take the snapshot when read).
 
         Returns:
             What changed and the current safe areas, with timings.
@@ -155,7 +162,7 @@ class SensedMap:
         c, s = math.cos(p[2]), math.sin(p[2])
         ox, oy = self.sensor_offset
         origin = (p[0] + c * ox - s * oy, p[1] + s * ox + c * oy)
-        up = self._integrate_at(origin, float(p[2]), ranges, hit, angles, route_snapshot)
+        up = self._integrate_at(origin, float(p[2]), ranges, hit, angles, route_snapshot, snapshot)
         # the returns also feed the scan matcher's field (first return per cell)
         r = np.asarray(ranges, dtype=float)
         a = np.asarray(angles, dtype=float) + p[2]
@@ -173,7 +180,8 @@ class SensedMap:
             self._route_stale = False
         return self._route_snapshot
 
-    def clear_footprint(self, pose, radius: float, beams: int = 64, route_snapshot: bool = True) -> SensedUpdate:
+    def clear_footprint(self, pose, radius: float, beams: int = 64, route_snapshot: bool = True,
+                        snapshot: bool = True) -> SensedUpdate:
         """Observe the disc the robot's body covers as free (nothing else can be there).
 
         A 2-D lidar ahead of the axle never sees the cells under and just behind the robot
@@ -186,7 +194,7 @@ class SensedMap:
             pose: (3,) [m, m, rad] measured robot pose.
             radius: [m] footprint radius (the circumscribed disc), >= 0.
             beams: number of beams over the full circle, >= 8.
-            route_snapshot: as :meth:`integrate`.
+            route_snapshot, snapshot: as :meth:`integrate`.
 
         Returns:
             The update, as :meth:`integrate`.
@@ -199,9 +207,10 @@ class SensedMap:
         angles = np.linspace(-math.pi, math.pi, int(beams), endpoint=False)
         ranges = np.full(int(beams), float(radius))
         return self._integrate_at((p[0], p[1]), float(p[2]), ranges, np.zeros(int(beams), bool), angles,
-                                  route_snapshot)
+                                  route_snapshot, snapshot)
 
-    def clear_box(self, pose, box, shrink: float, route_snapshot: bool = True) -> SensedUpdate:
+    def clear_box(self, pose, box, shrink: float, route_snapshot: bool = True, snapshot: bool = True
+                  ) -> SensedUpdate:
         """Observe free the cells that lie entirely inside the robot's body rectangle, shrunk.
 
         The robot's body covers ``box`` (its footprint rectangle in the base frame); with the
@@ -217,7 +226,7 @@ class SensedMap:
             pose: (3,) [m, m, rad] estimated robot pose.
             box: (xmin, xmax, ymin, ymax) [m] body rectangle in the base frame.
             shrink: [m] distance by which the rectangle is shrunk, >= 0.
-            route_snapshot: as :meth:`integrate`.
+            route_snapshot, snapshot: as :meth:`integrate`.
 
         Returns:
             The update, as :meth:`integrate`.
@@ -229,7 +238,7 @@ class SensedMap:
         if not (x1 > x0 and y1 > y0 and math.isfinite(shrink) and shrink >= 0):
             raise ValueError(f"box must be (xmin, xmax, ymin, ymax) with xmin < xmax, ymin < ymax and shrink "
                              f"finite >= 0 [m], got {box!r}, {shrink!r}")
-        return self._integrate_cells(self.box_cells(p, (x0, x1, y0, y1), shrink), route_snapshot)
+        return self._integrate_cells(self.box_cells(p, (x0, x1, y0, y1), shrink), route_snapshot, snapshot)
 
     def box_cells(self, pose, box, shrink: float) -> np.ndarray:
         """(K,) int64 flat indices of the cells whose closed squares lie inside the rectangle
@@ -261,26 +270,29 @@ class SensedMap:
                 inside &= (bx >= x0) & (bx <= x1) & (by >= y0) & (by <= y1)
         return (ii[inside] * nx + jj[inside]).astype(np.int64)
 
-    def _integrate_cells(self, cells, route_snapshot: bool) -> SensedUpdate:
+    def _integrate_cells(self, cells, route_snapshot: bool, snapshot: bool = True) -> SensedUpdate:
         t0 = time.perf_counter()
         up = self.grid.observe_free(cells)
-        return self._areas_after(up, t0, time.perf_counter(), route_snapshot)
+        return self._areas_after(up, t0, time.perf_counter(), route_snapshot, snapshot)
 
-    def _integrate_at(self, origin, heading: float, ranges, hit, angles, route_snapshot: bool = True
-                      ) -> SensedUpdate:
+    def _integrate_at(self, origin, heading: float, ranges, hit, angles, route_snapshot: bool = True,
+                      snapshot: bool = True) -> SensedUpdate:
         t0 = time.perf_counter()
         up = self.grid.integrate(origin, heading, ranges, hit, angles)
-        return self._areas_after(up, t0, time.perf_counter(), route_snapshot)
+        return self._areas_after(up, t0, time.perf_counter(), route_snapshot, snapshot)
 
-    def _areas_after(self, up, t0: float, t1: float, route_snapshot: bool) -> SensedUpdate:
+    def _areas_after(self, up, t0: float, t1: float, route_snapshot: bool, snapshot: bool = True
+                     ) -> SensedUpdate:
         """Bring the safe and route areas up to date after the grid update ``up`` (timed from
-        ``t0``; the grid update ended at ``t1``)."""
+        ``t0``; the grid update ended at ``t1``); the safe snapshot only when ``snapshot``."""
         cells = up.safe_changed
         if cells.size:
             self.areas.update_cells(cells, ~self.grid.safe_at(cells))
+            self._safe_stale = True
         t2 = time.perf_counter()
-        if cells.size:
-            self._snapshot = self.areas.safe_areas()
+        boxes = areas = None
+        if snapshot:
+            boxes, areas = self._safe_now()
         t3 = time.perf_counter()
         rcells = up.route_changed
         if self.route is not None and rcells.size:
@@ -288,7 +300,6 @@ class SensedMap:
             self._route_stale = True
         route_boxes, route_areas = self.route_areas() if route_snapshot else (None, None)
         t4 = time.perf_counter()
-        boxes, areas = self._snapshot
         timing = {"map": 1e3 * (t1 - t0), "areas": 1e3 * (t2 - t1), "snapshot": 1e3 * (t3 - t2),
                   "route": 1e3 * (t4 - t3), "total": 1e3 * (t4 - t0)}
         return SensedUpdate(changed=bool(cells.size), n_state_changed=int(up.state_changed.size),
@@ -296,20 +307,32 @@ class SensedMap:
                             route_changed=bool(rcells.size) and self.route is not None,
                             route_boxes=route_boxes, route_areas=route_areas)
 
+    def _safe_now(self) -> tuple[np.ndarray, SafeAreas]:
+        """The current safe areas' compact snapshot, taken only when they changed since the
+        last one (the snapshot reads the areas' state and changes nothing, so taking it
+        later gives the same arrays)."""
+        if self._safe_stale:
+            self._snapshot = self.areas.safe_areas()
+            self._safe_stale = False
+        return self._snapshot
+
     def areas_now(self) -> SafeAreas:
-        """The current safe areas (as the last update returned them)."""
-        return self._snapshot[1]
+        """The current safe areas (the snapshot is taken here when an update left it out)."""
+        return self._safe_now()[1]
 
     def boxes_now(self) -> np.ndarray:
-        """(R, 4) int64 cell boxes of the current safe areas."""
-        return self._snapshot[0]
+        """(R, 4) int64 cell boxes of the current safe areas (as :meth:`areas_now`)."""
+        return self._safe_now()[0]
 
-    def rects_still_safe(self, rects) -> np.ndarray:
+    def rects_still_safe(self, rects, use_kernel: bool = True) -> np.ndarray:
         """Whether each world rectangle still lies entirely in safe cells.
 
         Args:
             rects: (K, 4) [m] ``xmin, ymin, xmax, ymax`` (e.g. the rectangles of a corridor
                 planned earlier; safe rectangles lie on cell boundaries).
+
+            use_kernel: False forces the Python loop (else the compiled test of
+                :mod:`~sanav_mj.mapping.rect_kernel` when available; the same answers).
 
         Returns:
             (K,) bool; False where a cell inside the rectangle is no longer safe (replan).
@@ -317,6 +340,10 @@ class SensedMap:
         r = np.asarray(rects, dtype=float).reshape(-1, 4)
         g = self.grid
         h = g.resolution
+        if use_kernel:
+            fast = rect_kernel.rects_free(r, g.blocked, g.origin, h)
+            if fast is not None:
+                return fast
         ny, nx = g.shape
         j0 = np.clip(np.floor((r[:, 0] - g.origin[0]) / h + 1e-9), 0, nx).astype(int)
         i0 = np.clip(np.floor((r[:, 1] - g.origin[1]) / h + 1e-9), 0, ny).astype(int)

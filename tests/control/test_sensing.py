@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sanav_mj.control.base import Observation
-from sanav_mj.control.sensing import SensingConfig, SensingSAMPC
+from sanav_mj.control.sensing import SensingConfig, SensingSAMPC, grid_cells, in_ok_cells
 from sanav_mj.mapping.live_grid import OCCUPIED
 from sanav_mj.scene import load_scenario
 
@@ -101,7 +101,7 @@ def test_config_errors_name_the_field(kwargs):
 
 
 def test_closed_square_cell_test_matches_the_four_shifted_points():
-    """_in_ok_cells (one lookup for the four points shifted by +-1e-6 cell) against the
+    """in_ok_cells (one lookup for the four points shifted by +-1e-6 cell) against the
     plain definition: a point is accepted when any of its four shifted points' cells is; on
     random points, cell edges and corners, and points outside the grid (clipped)."""
     _, ctrl = _ctrl()
@@ -118,7 +118,26 @@ def test_closed_square_cell_test_matches_the_four_shifted_points():
     for ok_at in (g.safe_at, g.route_safe_at):
         ref = np.zeros(len(pts), dtype=bool)
         for dx, dy in ((-e, -e), (-e, e), (e, -e), (e, e)):
-            ref |= ok_at(ctrl._cells(pts + np.array([dx, dy])))
-        got = ctrl._in_ok_cells(pts, ok_at)
+            ref |= ok_at(grid_cells(g, pts + np.array([dx, dy])))
+        got = in_ok_cells(g, pts, ok_at)
         assert np.array_equal(got, ref)
         assert ref.any() and not ref.all()
+
+
+def test_cells_of_a_few_points_equal_the_array_path():
+    """grid_cells on up to four points (the robot's own: Python floats) gives the same cells as
+    its NumPy path on many points: random points, points on cell edges and just beside them,
+    and points outside the grid (clamped)."""
+    _, ctrl = _ctrl()
+    g = ctrl.map.grid
+    rng = np.random.default_rng(7)
+    filler = np.zeros((5, 2))  # more than four points: the array path
+    for k in range(3000):
+        p = int(rng.integers(1, 5))
+        pts = rng.uniform((-3.0, -4.0), (9.0, 4.0), (p, 2))
+        if k % 3 == 0:  # on cell edges (origin + n h), or one rounding step beside them
+            pts = g.origin + np.round((pts - g.origin) / g.resolution) * g.resolution
+            pts = pts + rng.choice([0.0, 1e-15, -1e-15], (p, 2))
+        fast = grid_cells(g, pts)
+        ref = grid_cells(g, np.vstack([pts, filler]))[:p]
+        assert fast.dtype == np.int64 and np.array_equal(fast, ref)

@@ -18,7 +18,7 @@ import pytest
 from _helpers import cells_of_box
 from sanav_mj.control.prediction import PredictionDerating
 from sanav_mj.eval.episode import run_scenario
-from sanav_mj.eval.lidar import lidar_cell, lidar_controller, lidar_spec
+from sanav_mj.eval.lidar import lidar_cell, lidar_controller, lidar_match, lidar_spec
 from sanav_mj.eval.prepare import DEFAULT_MARGIN_M, footprint_spec, prepare
 from sanav_mj.footprint import robot_footprint
 from sanav_mj.scene import load_scenario
@@ -343,23 +343,35 @@ def test_sensing_config_discs_fields_are_validated(kwargs, match):
         SensingConfig(**kwargs)
 
 
-def test_scan_matcher_reaches_as_far_in_metres_on_the_finer_sensed_cells():
+def test_scan_matcher_reaches_as_far_in_metres_on_the_finer_sensed_cells(monkeypatch):
     """On the discs mode's 0.025 m cells the matcher's cell-counted settings are doubled
     (:func:`lidar_match`), so it pairs returns as far as on 0.05 m cells. With the 0.05 m
-    counts the turn on the spot at the start of single_rect seed 3 (an open room: few returns)
-    gave only ``few_points`` matches, its scans were not added and the robot turned for 7 s
-    before its first plan; with them the matches are used and it plans after 2.2 s."""
-    from sanav_mj.eval.lidar import lidar_match
+    counts, the turn on the spot at 1 rad/s at the start of single_rect seed 3 (an open room:
+    few returns) gave only ``few_points`` matches, its scans were not added and the robot
+    turned for 7 s before its first plan; with them the matches are used and it plans after
+    2.2 s. (At the default 2 rad/s both plan after 1.3 s: the turn sees the room sooner.)"""
+    from dataclasses import replace
+
+    import sanav_mj.eval.lidar as lidar
     from sanav_mj.mapping.scan_match import ScanMatchConfig
 
     base = ScanMatchConfig()
     assert lidar_match(1.0) == base
     assert (lidar_match(2.0).radius_cells, lidar_match(2.0).xy_window) == (2 * base.radius_cells, 2 * base.xy_window)
-    ctrl = lidar_controller(load_scenario("single_rect"), DISCS)
+    sc = load_scenario("single_rect")
+    ctrl = lidar_controller(sc, DISCS)
     assert ctrl.map.grid.resolution == 0.025 and ctrl.config.map.match == lidar_match(2.0)
-    out = run_scenario("single_rect", seed=3, sensing="lidar", controller_spec=DISCS, time_limit_s=3.0)
-    statuses = [m[0] for m in out.sensed.match_log]
-    assert "few_points" not in statuses
-    assert out.sensed.mpc is not None  # the first plan came within the 3 s
-    first = next(i for i, r in enumerate(out.sensed.records) if r.replan == "initial")
-    assert first * 0.1 < 3.0
+
+    def run(ctrl):
+        ctrl.config = replace(ctrl.config, scan_turn_rate=1.0)  # read at each step of the turn
+        out = run_scenario(sc, seed=3, sensing="lidar", controller_spec=DISCS, controller_obj=ctrl, time_limit_s=8.0)
+        first = next((i for i, r in enumerate(out.sensed.records) if r.replan == "initial"), None)
+        return [m[0] for m in out.sensed.match_log].count("few_points"), first
+
+    few, first = run(ctrl)
+    assert few == 0 and first is not None and first * 0.1 < 3.0
+    monkeypatch.setattr(lidar, "lidar_match", lambda refine: ScanMatchConfig())  # the 0.05 m counts
+    unscaled = lidar.lidar_controller(sc, DISCS)
+    assert unscaled.config.map.match == base
+    few_base, first_base = run(unscaled)
+    assert few_base > 20 and (first_base is None or first_base > first + 20)

@@ -232,3 +232,72 @@ def test_scan_match_runs_without_the_compiled_kernel():
     pts, normals = scan_points(r, hit, ANGLES, max_points=cfg.max_points)
     m = ScanMatcher(f, cfg).match(np.array([2.0, 1.5, 0.3]), pts, normals)
     assert m.status == "ok" and out.strip() == f"{m.pose.tolist()!r} {m.status}"
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_compiled_field_update_equals_the_numpy_reference(seed):
+    """LikelihoodField.add_points with the compiled loops (match_kernel.accumulate and
+    spread) leaves the same sums, counts, hit points, field S and values, bit for bit, as the
+    NumPy reference, and returns the same counts, over a seeded sequence of batches: returns
+    in new cells, in cells hit before, several in one cell, outside the grid, NaN, empty."""
+    from sanav_mj.mapping import match_kernel
+
+    if not match_kernel.kernel_available():
+        pytest.skip("no C compiler: only the NumPy path exists")
+    rng = np.random.default_rng(seed)
+    cfg = ScanMatchConfig()
+    b = np.array([-0.2, -0.1, 3.8, 2.9])
+    ref, fast = (LikelihoodField(grid_shape(b, H), b[:2], H, cfg.sigma, cfg.radius_cells) for _ in range(2))
+    seen = np.zeros((0, 2))
+    counts = []
+    for k in range(12):
+        pts = rng.uniform([-0.4, -0.3], [4.0, 3.1], size=(int(rng.integers(0, 300)), 2))
+        if len(seen):  # returns again in cells hit before, a little apart
+            pts = np.concatenate([pts, seen[rng.integers(0, len(seen), 80)] + rng.normal(0, 0.01, (80, 2))])
+        if k % 4 == 3:
+            pts = np.concatenate([pts, [[np.nan, 1.0], [1.0, np.inf], [-5.0, 1.0]]])
+        if k == 5:
+            pts = np.zeros((0, 2))
+        with np.errstate(invalid="ignore"):  # NumPy's cast of floor(NaN) to int64
+            na = ref.add_points(pts, use_kernel=False)
+        nb = fast.add_points(pts)
+        assert na == nb
+        counts.append(na)
+        seen = np.concatenate([seen, pts[np.all(np.isfinite(pts), axis=1)]])
+    for name in ("_sx", "_sy", "_n", "_px", "_py", "_hit", "_S", "values"):
+        assert np.array_equal(getattr(ref, name), getattr(fast, name)), name
+    assert ref.count == fast.count == sum(counts) and min(counts) == 0 and max(counts) > 50
+    assert not fast._mark.any()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_compiled_scan_points_equal_the_numpy_reference(seed):
+    """scan_points with the compiled loop (match_kernel.scan_surface; the beam angles'
+    cosines reused while the angles repeat) gives the same points and normals, bit for bit,
+    as the NumPy reference: random scans with gaps, NaN ranges and a non-finite angle, the
+    same angles several scans in a row and then other angles, with and without the pick of
+    max_points, stencils 1 and 3."""
+    from sanav_mj.mapping import match_kernel
+
+    if not match_kernel.kernel_available():
+        pytest.skip("no C compiler: only the NumPy path exists")
+    rng = np.random.default_rng(seed)
+    angles = np.linspace(-2.356, 2.356, 541)
+    checked = 0
+    for k in range(40):
+        if k % 10 == 9:  # other angles (another lidar): the cached cosines must not be reused
+            angles = np.sort(rng.uniform(-2.4, 2.4, int(rng.integers(0, 700))))
+        b = len(angles)
+        a = angles.copy()
+        r = np.where(rng.uniform(size=b) < 0.7, 2.0 + np.cumsum(rng.normal(0, 0.02, b)), rng.uniform(0.1, 8, b))
+        hit = rng.uniform(size=b) < 0.85
+        if k % 4 == 1 and b > 5:
+            r[rng.integers(0, b, 3)] = np.nan
+            a[rng.integers(0, b)] = np.inf
+        for mp, st in ((None, 3), (120, 3), (None, 1)):
+            with np.errstate(invalid="ignore"):  # cos(inf), NaN * 0 in both paths
+                pa, na = scan_points(r, hit, a, (0.12, 0.01), mp, stencil=st, use_kernel=False)
+                pb, nb = scan_points(r, hit, a, (0.12, 0.01), mp, stencil=st)
+            assert np.array_equal(pa, pb) and np.array_equal(na, nb)
+            checked += len(pa)
+    assert checked > 10000

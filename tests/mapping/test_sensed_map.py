@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from sanav_mj.mapping.safe_areas import build_safe_areas
 from sanav_mj.mapping.sensed_map import SensedMap, SensedMapConfig
@@ -122,6 +123,38 @@ def test_route_areas_on_demand_equal_the_per_scan_snapshot():
 BODY = (-0.25, 0.25, -0.215, 0.215)  # the packaged robot's footprint rectangle (deck) [m]
 
 
+def test_safe_areas_on_demand_equal_the_per_scan_snapshot():
+    """snapshot=False (scans and body clearing): no safe areas in the result, and
+    areas_now() / boxes_now() read later give exactly what a map taking the snapshot at
+    every update returned (boxes, rectangles, edges, weights, portals); the snapshot is
+    reused while nothing changed."""
+    room = (0.0, 0.0, 8.0, 4.0)
+    offset = (0.12, 0.0)
+    eager, lazy = SensedMap(room, 0.3, offset), SensedMap(room, 0.3, offset)
+    angles = np.linspace(-2.356, 2.356, 361)
+    boxes = [(4.0, 1.5, 4.4, 2.5), (2.5, 0.4, 2.7, 0.9)]
+    asked = 0
+    for k in range(12):
+        pose = (0.8 + 0.25 * k, 2.0 + 0.3 * math.cos(k), 0.3 * math.sin(k))
+        r, hit = _scan(pose, offset, angles, boxes, room)
+        if k % 4 == 1:
+            ce = eager.clear_box(pose, BODY, 0.05)
+            cl = lazy.clear_box(pose, BODY, 0.05, snapshot=False)
+            assert cl.boxes is None and cl.areas is None and cl.changed == ce.changed
+        ue = eager.integrate(pose, r, hit, angles)
+        ul = lazy.integrate(pose, r, hit, angles, snapshot=False)
+        assert ul.boxes is None and ul.areas is None and ul.changed == ue.changed
+        assert ul.n_safe_changed == ue.n_safe_changed
+        if k % 3 == 2:  # ask only now and then (as a controller does at replans)
+            asked += 1
+            a, b = lazy.areas_now(), lazy.boxes_now()
+            assert np.array_equal(b, ue.boxes) and np.array_equal(b, eager.boxes_now())
+            for name in ("rects", "edges", "weights", "portals"):
+                assert np.array_equal(getattr(a, name), getattr(ue.areas, name))
+            assert lazy.areas_now() is a  # nothing changed since: the same snapshot
+    assert asked == 4 and len(b) > 5
+
+
 def _inside_body(pts, pose, box, tol=1e-9):
     """Whether (P, 2) world points lie in the body rectangle ``box`` at ``pose``."""
     c, s = math.cos(pose[2]), math.sin(pose[2])
@@ -182,3 +215,35 @@ def test_clear_box_frees_the_body_cells_once_but_never_a_cell_that_held_a_return
     assert (st[others] == 1).all()  # the others are free after one observation
     expected = np.maximum(before[others] + np.float32(g.config.l_free), np.float32(g.config.l_min))
     assert np.array_equal(g.log_odds.reshape(-1)[others], expected)  # one l_free each
+
+
+def test_compiled_rect_test_equals_the_python_loop():
+    """rects_still_safe with the compiled test (sanav_mj.mapping.rect_kernel) answers as the
+    Python loop: the safe areas' own rectangles (all safe), random rectangles (partly
+    unsafe), rectangles off the grid, empty and inverted ones, and all of them moved to cell
+    edges or 1e-12 m beside them, at several map states."""
+    from sanav_mj.mapping import rect_kernel
+
+    if not rect_kernel.kernel_available():
+        pytest.skip("no C compiler: only the Python loop exists")
+    room = (0.0, 0.0, 8.0, 4.0)
+    offset = (0.12, 0.0)
+    m = SensedMap(room, 0.3, offset)
+    angles = np.linspace(-2.356, 2.356, 361)
+    boxes = [(4.0, 1.5, 4.4, 2.5), (2.5, 0.4, 2.7, 0.9)]
+    rng = np.random.default_rng(3)
+    seen = [0, 0]
+    for k in range(8):
+        pose = (0.8 + 0.4 * k, 2.0 + 0.3 * math.cos(k), 0.3 * math.sin(k))
+        r, hit = _scan(pose, offset, angles, boxes, room)
+        m.integrate(pose, r, hit, angles)
+        lo = rng.uniform(-1.0, 8.5, (300, 2))
+        rects = np.concatenate([m.areas_now().rects, np.column_stack([lo, lo + rng.uniform(-0.2, 2.0, (300, 2))]),
+                                [[-3.0, -3.0, -1.0, -1.0], [1.0, 1.0, 1.0, 2.0], [9.0, 1.0, 12.0, 2.0]]])
+        rects = np.concatenate([rects, np.tile(m.grid.origin, 2) + np.round(  # on cell edges, or just beside
+            (rects - np.tile(m.grid.origin, 2)) / 0.05) * 0.05 + rng.choice([0.0, 1e-12, -1e-12], rects.shape)])
+        ref = m.rects_still_safe(rects, use_kernel=False)
+        assert np.array_equal(m.rects_still_safe(rects), ref)
+        seen[0] += ref.sum()
+        seen[1] += (~ref).sum()
+    assert min(seen) > 100
