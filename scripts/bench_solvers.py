@@ -22,12 +22,19 @@
    scenarios x SEEDS random initial yaws (the harness of ``sanav-mj run``); outcomes and the
    wall (``solve_ms``) and CPU time of every controller step.
 
-Usage: ``python scripts/bench_solvers.py [--solvers zerofpr panoc pantr ipopt] [--horizon 20] [--mujoco 10]``.
+   With ``--footprint disc discs`` both footprint modes side by side (each with its own map
+   and plan, episodes interleaved), and for each the solver call's share of the step; with
+   ``--mujoco-only`` nothing else is run.
+
+Usage: ``python scripts/bench_solvers.py [--solvers zerofpr panoc pantr ipopt] [--horizon 20] [--mujoco 10]``;
+the issue-14 step target: ``python scripts/bench_solvers.py --solvers zerofpr --mujoco 5 --mujoco-only
+--footprint disc discs``.
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import os
 import subprocess
@@ -233,48 +240,102 @@ def replay(backends: dict, ocp, problems, rate_step) -> dict:
     return out
 
 
-def mujoco_loops(solvers: list[str], seeds: int) -> dict:
+def replay_min(make, pose0: np.ndarray, observations: list, commands: list, repeats: int) -> np.ndarray:
+    """Per-step minimum wall time [ms] (S,) of ``repeats`` replays of an episode's
+    ``observations`` (S,) through fresh controllers ``make()`` reset at ``pose0`` (3,).
+
+    The controller is deterministic given its observations, so every replay poses and solves
+    the very problems of the episode (checked: each replayed command equals the episode's
+    ``commands``, else RuntimeError); the minimum over the replays drops the time a step
+    spent waiting for a core on a loaded machine, which a single run cannot separate."""
+    best = np.full(len(observations), np.inf)
+    for _ in range(repeats):
+        ctl = make()
+        ctl.reset(pose0)
+        for i, obs in enumerate(observations):
+            t0 = time.perf_counter()
+            cmd = ctl.step(obs)
+            best[i] = min(best[i], (time.perf_counter() - t0) * 1e3)
+            if (cmd.v, cmd.w) != (commands[i].v, commands[i].w):
+                raise RuntimeError(f"replay step {i}: command {(cmd.v, cmd.w)} differs from the episode's "
+                                   f"{(commands[i].v, commands[i].w)}")
+    return best
+
+
+def mujoco_loops(solvers: list[str], seeds: int, footprints: tuple[str, ...] = ("disc",), replays: int = 0) -> dict:
     """The five built-in scenarios x ``seeds`` random initial yaws in MuJoCo (``sanav-mj run``'s
-    harness) with SA-MPC on each of ``solvers`` (taking turns episode by episode): outcomes
-    and the per-step wall time (``solve_ms``) and CPU time of ``SAMPC.step``. Returns
-    solver -> statistics."""
+    harness) with SA-MPC on each of ``solvers`` and each of ``footprints`` (``MPCConfig.footprint``:
+    ``"disc"`` and / or ``"discs"``, each with its own map and plan, as ``run --footprint``),
+    taking turns episode by episode so a change of the machine's load hits them alike:
+    outcomes, the per-step wall time (``solve_ms``) and CPU time of ``SAMPC.step``, and the
+    part of the wall time spent in the solver back-end's call (``SolveResult.solver_ms``; the
+    rest is the Python around it). With ``replays`` > 0 also the per-step minimum over that
+    many replays of each episode (:func:`replay_min`). Returns ``solver`` -> statistics for
+    the disc footprint alone, else ``"solver:footprint"`` -> statistics."""
+    from sanav_mj.control.factory import make_controller
+    from sanav_mj.control.spec import ControllerSpec
     from sanav_mj.eval.episode import run_scenario
     from sanav_mj.eval.prepare import initial_pose, prepare
     from sanav_mj.scene import load_scenario
 
-    acc = {s: {"runs": [], "wall": [], "cpu": [], "turn": [], "statuses": {}} for s in solvers}
+    keys = [(s, f) for s in solvers for f in footprints]
+    acc = {k: {"runs": [], "wall": [], "cpu": [], "solver": [], "turn": [], "statuses": {}, "replay": []} for k in keys}
     for name in BUILTIN:
         scenario = load_scenario(name)
         for seed in range(seeds):
             start = initial_pose(scenario, seed, None)
-            prep = prepare(scenario, start=start)
-            for solver in solvers:
-                a = acc[solver]
-                ctl = SAMPC(scenario.robot, prep.areas, prep.plan, MPCConfig(solver=solver, solve_budget_ms=None))
-                step = ctl.step
+            for fp in footprints:
+                spec = ControllerSpec("sa-mpc", dataclasses.replace(MPCConfig(solve_budget_ms=None), footprint=fp))
+                prep = prepare(scenario, start=start, controller=spec)
+                for solver in solvers:
+                    a = acc[(solver, fp)]
+                    spec_s = ControllerSpec("sa-mpc", dataclasses.replace(spec.sa_mpc, solver=solver))
+                    ctl = make_controller(spec_s, prep.scenario, prep.grid, prep.areas, prep.plan)
+                    step, solve = ctl.step, ctl.solve
+                    cell = [0.0]
+                    log: tuple[list, list] = ([], [])
 
-                def timed(obs, step=step, cpu=a["cpu"]):
-                    c0 = time.process_time()
-                    cmd = step(obs)
-                    cpu.append((time.process_time() - c0) * 1e3)
-                    return cmd
+                    def timed(obs, step=step, cpu=a["cpu"], sol=a["solver"], cell=cell, log=log):
+                        if replays:
+                            log[0].append(copy.deepcopy(obs))
+                        cell[0] = 0.0
+                        c0 = time.process_time()
+                        cmd = step(obs)
+                        cpu.append((time.process_time() - c0) * 1e3)
+                        sol.append(cell[0])
+                        log[1].append(cmd)
+                        return cmd
 
-                ctl.step = timed
-                ep = run_scenario(prep, "sa-mpc", seed=seed, controller_obj=ctl).episode
-                a["wall"].extend(ep.trace.solve_ms)
-                a["turn"].extend(st == "turn" for st in ep.trace.status)
-                for st in ep.trace.status:
-                    a["statuses"][st] = a["statuses"].get(st, 0) + 1
-                a["runs"].append(
-                    {"scenario": name, "seed": seed, "success": bool(ep.success), "reason": ep.reason,
-                     "collisions": int(ep.collisions), "fallback_steps": int(ep.solver_failures), "steps": int(ep.steps)}
-                )  # fmt: skip
+                    def solve_timed(prob, x0, solve=solve, cell=cell):
+                        out = solve(prob, x0)
+                        cell[0] += out[0].solver_ms
+                        return out
+
+                    ctl.step, ctl.solve = timed, solve_timed
+                    ep = run_scenario(prep, "sa-mpc", seed=seed, controller_obj=ctl, controller_spec=spec_s).episode
+                    a["wall"].extend(ep.trace.solve_ms)
+                    if replays:
+                        def make(spec_s=spec_s, prep=prep):
+                            return make_controller(spec_s, prep.scenario, prep.grid, prep.areas, prep.plan)
+
+                        a["replay"].extend(replay_min(make, start, log[0], log[1], replays).tolist())
+                    a["turn"].extend(st == "turn" for st in ep.trace.status)
+                    for st in ep.trace.status:
+                        a["statuses"][st] = a["statuses"].get(st, 0) + 1
+                    a["runs"].append(
+                        {"scenario": name, "seed": seed, "footprint": fp, "success": bool(ep.success),
+                         "reason": ep.reason, "collisions": int(ep.collisions),
+                         "fallback_steps": int(ep.solver_failures), "steps": int(ep.steps)}
+                    )  # fmt: skip
     out = {}
-    for solver in solvers:
-        a = acc[solver]
+    for solver, fp in keys:
+        a = acc[(solver, fp)]
         runs = a["runs"]
         wall, cpu, mpc = np.array(a["wall"]), np.array(a["cpu"]), ~np.array(a["turn"], dtype=bool)
-        out[solver] = {
+        sol = np.array(a["solver"])
+        key = solver if footprints == ("disc",) else f"{solver}:{fp}"
+        out[key] = {
+            "footprint": fp,
             "runs": runs,
             "successes": sum(r["success"] for r in runs),
             "collisions": sum(r["collisions"] for r in runs),
@@ -289,6 +350,10 @@ def mujoco_loops(solvers: list[str], seeds: int) -> dict:
             "cpu_ms_mean": float(cpu.mean()),
             "cpu_ms_p99": float(np.percentile(cpu, 99)),
             "cpu_ms_max": float(cpu.max()),
+            # the back-end's call (alpaqa / IPOPT itself) and the Python of the step around it
+            "solver_ms_mean": float(sol.mean()),
+            "python_ms_mean": float((wall - sol).mean()),
+            "python_ms_p99": float(np.percentile(wall - sol, 99)),
             # the same without the opening turn's steps (no solve): the MPC steps alone
             "mpc_steps": int(mpc.sum()),
             "mpc_wall_ms_mean": float(wall[mpc].mean()),
@@ -297,6 +362,11 @@ def mujoco_loops(solvers: list[str], seeds: int) -> dict:
             "mpc_cpu_ms_p99": float(np.percentile(cpu[mpc], 99)),
             "load_avg_1min": os.getloadavg()[0],
         }
+        if replays:
+            rep = np.array(a["replay"])
+            out[key].update({"replays": replays, "replay_min_ms_mean": float(rep.mean()),
+                             "replay_min_ms_p50": float(np.median(rep)), "replay_min_ms_p99": float(np.percentile(rep, 99)),
+                             "replay_min_ms_max": float(rep.max())})
     return out
 
 
@@ -326,6 +396,27 @@ def build_times(solver: str, horizon: int) -> dict:
     return out
 
 
+def print_mujoco(loops: dict, seeds: int) -> None:
+    """Print :func:`mujoco_loops`' statistics, one block per solver (and footprint)."""
+    print(f"\nMuJoCo: five built-in scenarios x {seeds} random initial yaws (SAMPC.step per control step)")
+    ipopt = loops.get("ipopt")
+    for key, m in loops.items():
+        ratio = ipopt["wall_ms_mean"] / m["wall_ms_mean"] if ipopt else float("nan")
+        print(f"{key:14s} success {m['successes']}/{len(m['runs'])} collisions {m['collisions']} fallback steps "
+              f"{m['fallback_steps']} | wall mean {m['wall_ms_mean']:.2f} p50 {m['wall_ms_p50']:.2f} p99 "
+              f"{m['wall_ms_p99']:.2f} max {m['wall_ms_max']:.1f} ms ({m['wall_over_5ms'] * 100:.1f} % > 5 ms) | cpu mean "
+              f"{m['cpu_ms_mean']:.2f} p99 {m['cpu_ms_p99']:.2f} max {m['cpu_ms_max']:.1f} ms | IPOPT/this {ratio:.1f}x "
+              f"| {m['steps']} steps, load {m['load_avg_1min']:.1f}")  # fmt: skip
+        print(f"{'':14s} MPC steps only ({m['mpc_steps']}, without the opening turn): wall mean "
+              f"{m['mpc_wall_ms_mean']:.2f} p99 {m['mpc_wall_ms_p99']:.2f} | cpu mean {m['mpc_cpu_ms_mean']:.2f} "
+              f"p99 {m['mpc_cpu_ms_p99']:.2f} ms")  # fmt: skip
+        print(f"{'':14s} of the wall mean: solver call {m['solver_ms_mean']:.2f} ms, Python around it "
+              f"{m['python_ms_mean']:.2f} ms (p99 {m['python_ms_p99']:.2f})")
+        if "replays" in m:
+            print(f"{'':14s} per-step minimum of {m['replays']} replays: mean {m['replay_min_ms_mean']:.2f} p50 "
+                  f"{m['replay_min_ms_p50']:.2f} p99 {m['replay_min_ms_p99']:.2f} max {m['replay_min_ms_max']:.1f} ms")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--solvers", nargs="+", default=["zerofpr", "panoc", "pantr", "ipopt"])
@@ -334,8 +425,25 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-scenarios", action="store_true", help="only the synthetic L and U corridors")
     ap.add_argument("--mujoco", type=int, default=0, metavar="SEEDS",
                     help="also run the five built-in scenarios x SEEDS random yaws in MuJoCo per back-end")
+    ap.add_argument("--footprint", nargs="+", choices=("disc", "discs"), default=["disc"],
+                    help="--mujoco: SA-MPC's footprint mode(s) (MPCConfig.footprint), run side by side")
+    ap.add_argument("--replays", type=int, default=0, metavar="K",
+                    help="--mujoco: also replay each episode K times and report the per-step minimum")
+    ap.add_argument("--mujoco-only", action="store_true",
+                    help="only the MuJoCo loops (--mujoco): no recording, replay, closed loops or build")
     ap.add_argument("--json", type=Path, help="write all results to this file")
     args = ap.parse_args(argv)
+    if args.mujoco_only and not args.mujoco:
+        ap.error("--mujoco-only needs --mujoco SEEDS")
+    if args.mujoco_only:
+        results = {"load_avg_start": os.getloadavg(), "mujoco": mujoco_loops(args.solvers, args.mujoco,
+                                                                              tuple(args.footprint), args.replays)}
+        results["load_avg_end"] = os.getloadavg()
+        print_mujoco(results["mujoco"], args.mujoco)
+        print(f"\nload average (1, 5, 15 min): start {results['load_avg_start']}, end {results['load_avg_end']}")
+        if args.json:
+            args.json.write_text(json.dumps(results, indent=1))
+        return 0
 
     # No wall-clock budget anywhere: every back-end runs to its own convergence (under load a
     # budget would cut IPOPT's slow solves short and spoil the reference).
@@ -371,7 +479,7 @@ def main(argv: list[str] | None = None) -> int:
         if not args.no_build:
             results["build"][solver] = build_times(solver, args.horizon)
     if args.mujoco:
-        results["mujoco"] = mujoco_loops(args.solvers, args.mujoco)
+        results["mujoco"] = mujoco_loops(args.solvers, args.mujoco, tuple(args.footprint), args.replays)
     results["load_avg_end"] = os.getloadavg()
 
     ref = results["replay"].get("ipopt")
@@ -405,18 +513,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{solver:8s} first {f['build_s']:.2f} s (compiled={f['compiled']}), second {s['build_s']:.3f} s "
                   f"(compiled={s['compiled']}); imports {s['imports_s']:.2f} s")  # fmt: skip
     if results["mujoco"]:
-        print(f"\nMuJoCo: five built-in scenarios x {args.mujoco} random initial yaws (SAMPC.step per control step)")
-        for solver, m in results["mujoco"].items():
-            ipopt = results["mujoco"].get("ipopt")
-            ratio = ipopt["wall_ms_mean"] / m["wall_ms_mean"] if ipopt else float("nan")
-            print(f"{solver:8s} success {m['successes']}/{len(m['runs'])} collisions {m['collisions']} fallback steps "
-                  f"{m['fallback_steps']} | wall mean {m['wall_ms_mean']:.2f} p50 {m['wall_ms_p50']:.2f} p99 "
-                  f"{m['wall_ms_p99']:.2f} max {m['wall_ms_max']:.1f} ms ({m['wall_over_5ms'] * 100:.1f} % > 5 ms) | cpu mean "
-                  f"{m['cpu_ms_mean']:.2f} p99 {m['cpu_ms_p99']:.2f} max {m['cpu_ms_max']:.1f} ms | IPOPT/this {ratio:.1f}x "
-                  f"| {m['steps']} steps, load {m['load_avg_1min']:.1f}")  # fmt: skip
-            print(f"{'':8s} MPC steps only ({m['mpc_steps']}, without the opening turn): wall mean "
-                  f"{m['mpc_wall_ms_mean']:.2f} p99 {m['mpc_wall_ms_p99']:.2f} | cpu mean {m['mpc_cpu_ms_mean']:.2f} "
-                  f"p99 {m['mpc_cpu_ms_p99']:.2f} ms")  # fmt: skip
+        print_mujoco(results["mujoco"], args.mujoco)
     print(f"\nload average (1, 5, 15 min): start {results['load_avg_start']}, end {results['load_avg_end']}")
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))

@@ -166,7 +166,7 @@ def test_lidar_run_with_the_discs_footprint():
     assert doc["success"] and doc["collisions"] == 0 and doc["sensing"] == "lidar"
     mpc = spec.sa_mpc
     assert doc["footprint"] == {"mode": "discs", "discs": 3, "margin_m": 0.05, "route": "corridor",
-                                "refine": mpc.footprint_refine, "grow_m": mpc.footprint_grow, "open_speed": None}
+                                "refine": mpc.footprint_refine, "grow_m": mpc.footprint_grow, "open_speed": mpc.footprint_open_speed}
     fp = sanav_mj.footprint.robot_footprint(res.prepared.scenario.model)
     assert res.sensed.map.grid.inflation == fp.discs(3)[1] + 0.05
     # one grid of 0.05 / footprint_refine m cells, the chain grown into its safe cells

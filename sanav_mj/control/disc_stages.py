@@ -272,3 +272,59 @@ class StallEscape:
         g = self.guesses[self.index % len(self.guesses)]
         self.index += 1
         return g
+
+
+#: [m] how far :func:`footprint_reference` moves a reference position, at most, per axis.
+REPAIR_REACH_M = 0.05
+#: [m] its position step; [rad] its yaw span either side of the planned yaw and yaw step.
+REPAIR_STEP_M = 0.01
+REPAIR_YAW_SPAN = 0.5 * np.pi
+REPAIR_YAW_STEP = np.deg2rad(2.0)
+
+
+def footprint_reference(cover: DiscCover, chain: CorridorChain, states: np.ndarray, inputs: np.ndarray,
+                        dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The reference with every pose that puts a disc centre outside the corridor chain moved
+    to the nearest pose that keeps all of them inside a member.
+
+    The corridor reference's yaw is its path's tangent; where the path turns from one narrow
+    passage into another that pose can leave a disc centre outside every chain member
+    (barn_0060, barn_0017: by up to 2 and 10 cm where the robot stalled), so SA-MPC tracks a
+    target its rows forbid. Each such sample ``i`` is replaced by the pose of a lattice
+    (position within :data:`REPAIR_REACH_M` per axis in steps of :data:`REPAIR_STEP_M`, yaw
+    within :data:`REPAIR_YAW_SPAN` in steps of :data:`REPAIR_YAW_STEP`) whose disc centres
+    all lie in the members (:meth:`DiscCover.clearance` >= 0) nearest in disc-centre
+    distance ``|dp|^2 + (sweep dyaw)^2``; a sample with no such pose is kept. The yaw rate of
+    the inputs around a moved sample is the yaw change over ``dt`` [s].
+
+    Args:
+        cover: the disc cover.
+        chain: the corridor chain the disc rows use.
+        states: (K, 3) [m, m, rad] reference states; inputs: (K, 2) or (K-1, 2) [m/s, rad/s].
+        dt: [s] the reference's period (> 0).
+
+    Returns:
+        New (states, inputs) arrays (the given ones untouched).
+    """
+    states = np.asarray(states, dtype=float)
+    bad = np.flatnonzero(cover.clearance(chain, states) < 0.0)
+    if bad.size == 0:
+        return states, inputs
+    n, m = int(round(REPAIR_REACH_M / REPAIR_STEP_M)), int(REPAIR_YAW_SPAN // REPAIR_YAW_STEP)
+    r = REPAIR_STEP_M * np.arange(-n, n + 1)  # integer multiples: the zero offset is exact
+    a = REPAIR_YAW_STEP * np.arange(-m, m + 1)
+    dx, dy, da = (g.ravel() for g in np.meshgrid(r, r, a, indexing="ij"))
+    cost = dx * dx + dy * dy + (cover.sweep * da) ** 2
+    order = np.argsort(cost, kind="stable")
+    dx, dy, da = dx[order], dy[order], da[order]
+    out = states.copy()
+    for i in bad:
+        cand = np.column_stack((states[i, 0] + dx, states[i, 1] + dy, states[i, 2] + da))
+        ok = np.flatnonzero(cover.clearance(chain, cand) >= 0.0)
+        if ok.size:
+            out[i] = cand[ok[0]]
+    inputs = np.asarray(inputs, dtype=float).copy()
+    touched = np.unique(np.concatenate((bad - 1, bad)))
+    touched = touched[(touched >= 0) & (touched < min(len(inputs), len(out) - 1))]
+    inputs[touched, 1] = (out[touched + 1, 2] - out[touched, 2]) / dt
+    return out, inputs

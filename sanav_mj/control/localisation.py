@@ -24,7 +24,7 @@ estimate (status ``"measured"``): with an exact measurement the map is built as 
 localisation.
 
 Used by :class:`sanav_mj.control.sensing.SensingSAMPC` (its ``config`` is a
-:class:`~sanav_mj.control.sensing.SensingConfig`: ``localise``, ``skip_unmatched``,
+:class:`~sanav_mj.control.sensing_config.SensingConfig`: ``localise``, ``skip_unmatched``,
 ``meas_sigma0``, ``meas_floor``, ``meas_forget``, ``consistent_chi2``, ``precise_meas``,
 ``odometry_sigma``).
 """

@@ -207,8 +207,8 @@ class PredictionMonitor:
         largest disc-centre distance to the prediction; 0 without a prediction)."""
         if self._expected is None:
             return 0.0
-        a = disc_centres(np.asarray(state, dtype=float).reshape(1, 3), self.offsets)[0]
-        b = disc_centres(self._expected[None], self.offsets)[0]
+        a, b = disc_centres(np.vstack((np.asarray(state, dtype=float).reshape(1, 3), self._expected[None])),
+                            self.offsets)
         e = float(np.max(np.hypot(*(a - b).T)))
         if math.isfinite(e):
             self._errors.append(e)
@@ -218,8 +218,8 @@ class PredictionMonitor:
     def observe_estimate(self, measured: np.ndarray, estimate: np.ndarray) -> None:
         """Fold in this step's measured pose (3,) and the pose filter's estimate (3,) [m, m,
         rad]: their disc centres' offsets (D, 2) [m] ``measured - estimate`` enter :attr:`bias`."""
-        a = disc_centres(np.asarray(measured, dtype=float).reshape(1, 3), self.offsets)[0]
-        b = disc_centres(np.asarray(estimate, dtype=float).reshape(1, 3), self.offsets)[0]
+        a, b = disc_centres(np.vstack((np.asarray(measured, dtype=float).reshape(1, 3),
+                                       np.asarray(estimate, dtype=float).reshape(1, 3))), self.offsets)
         d = a - b
         if np.all(np.isfinite(d)):
             self._offsets.append(d)

@@ -12,6 +12,7 @@ The optimisation problem is the shared tracking NLP of :mod:`sanav_mj.control.pr
 
 from __future__ import annotations
 
+import inspect
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -20,19 +21,29 @@ import numpy as np
 
 from sanav_mj.control.adaptation import PlantAdaptation
 from sanav_mj.control.config import MPCConfig
-from sanav_mj.control.disc_stages import DiscCover, StallEscape, member_chain_of, next_stop, sa_params_of_ids
+from sanav_mj.control.disc_stages import (
+    DiscCover,
+    StallEscape,
+    footprint_reference,
+    member_chain_of,
+    next_stop,
+    sa_params_of_ids,
+)
 from sanav_mj.control.prediction import PredictionMonitor
 from sanav_mj.control.problem import build_tracking_ocp
 from sanav_mj.control.stages import (
     CorridorChain,
     SafeAreaPenalty,
+    _outside_sq,
     assign_stages,
     box_slack,
     chain_slack,
     exit_targets,
+    feasible_from_bits,
     first_candidates,
     relax_boxes,
     safe_area_params,
+    shrink_box,
     stage_boxes,
     stage_rect_ids,
 )
@@ -46,6 +57,9 @@ __all__ = ["SAMPC", "MPCConfig", "StepInfo", "SafeAreaPenalty"]
 #: [m/s], [rad/s]: a previous input below both is "at rest" (the capped relaxation then
 #: follows the measured disc centres, :func:`_tightening`).
 REST_V, REST_W = 0.02, 0.05
+
+#: [m] :func:`assign_stages`' ``reanchor_distance`` (its default, which SA-MPC uses).
+REANCHOR_M = float(inspect.signature(assign_stages).parameters["reanchor_distance"].default)
 
 #: [m] disc-centre distance (position and sweep x yaw) within which the robot has reached a
 #: stop of a pose route's reference (see :meth:`SAMPC.reference`).
@@ -91,15 +105,23 @@ def _plan_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
 
 def _disc_constraints(ctl: SAMPC, x0: np.ndarray, x_ref: np.ndarray, u_ref: np.ndarray, guess: np.ndarray) -> Constraints:
     """:meth:`SAMPC.constrain` in ``"discs"`` mode: per-disc stages; exit targets and J_SA
-    slots of the chain, or for a pose route (one chain per disc) the planned targets and the
-    areas every disc's assignment spans (:mod:`sanav_mj.control.disc_stages`). With
+    slots of the chain (the corridor reference itself moved to poses whose disc centres fit
+    the chain, :func:`~sanav_mj.control.disc_stages.footprint_reference`; keeping the
+    targets as planned instead, without exit targets, collided at the envelope corner:
+    barn_0061, 5.8 cm excursion), or for a pose route (one chain per disc) the planned
+    targets and the areas every disc's assignment spans (:mod:`sanav_mj.control.disc_stages`). With
     ``PredictionDerating.tighten`` the disc rows' boxes are shrunk by the measured one-step
     prediction error and their widening is capped at the untightened boxes while the robot
     moves (:func:`~sanav_mj.control.stages.tighten_relax`; the argument and its assumptions
     in :mod:`sanav_mj.control.prediction`); the shift check reads :func:`_shift_bounds`."""
     tight = _tightening(ctl)
-    ss, plain, pts = ctl.discs.assign(ctl._chains(), guess, ctl._s_prev_d, ctl._check_tol)
-    bs, excursion = ctl.discs.relax(plain, pts[0], tight)
+    if ctl.disc_chains is None:  # one chain for every disc: the vectorised twins (exact)
+        pts = ctl.discs.centres(guess)
+        ss, plain = _assign_shared(ctl.chain, ctl._both, pts, ctl._s_prev_d, ctl._check_tol)
+        bs, excursion = _relax_all(plain, pts[0], tight)
+    else:
+        ss, plain, pts = ctl.discs.assign(ctl._chains(), guess, ctl._s_prev_d, ctl._check_tol)
+        bs, excursion = ctl.discs.relax(plain, pts[0], tight)
     c = ctl.discs.centre
     if ctl.disc_chains is None:
         xr, ur = exit_targets(ctl.chain, ctl._ref_chain[ctl._horizon_idx], x_ref, u_ref, ss[c], x0[:2], float(x0[2]))
@@ -137,8 +159,114 @@ def _shift_bounds(plain: np.ndarray, pts0: np.ndarray, follow: bool) -> tuple[np
     uncapped relaxation here let a nominal run creep 3 cm out over 17 shifted steps,
     barn_0026)."""
     if follow:
-        plain = np.array([relax_boxes(plain[d], pts0[d])[0] for d in range(plain.shape[0])])
+        plain = _relax_all(plain, pts0, None)[0]
     return DiscCover.bounds(plain)
+
+
+def _disc_rows(ctl: SAMPC, xs: np.ndarray) -> np.ndarray:
+    """:meth:`SAMPC.position_rows` in ``"discs"`` mode: the disc centres of stages 1..N of
+    the rollout ``xs`` (N+1, 3) as rows (2DN,) [m]; the centres of all of ``xs`` are kept
+    for :func:`_plan_centres` (the acceptance's rollout is the plan ``describe`` reports)."""
+    pts = ctl.discs.centres(xs)
+    ctl._centres_of = (xs, pts)
+    return pts[1:].ravel()
+
+
+def _plan_centres(ctl: SAMPC, xs: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """(N+1, D, 2) [m] disc centres of ``x0`` (3,) and the states ``xs[1:]`` (N, 3): those
+    :func:`_disc_rows` computed for this very ``xs`` when its first state is ``x0`` bit for
+    bit (the acceptance's rollout from ``x0``), else computed."""
+    kept = ctl._centres_of
+    if kept is not None and kept[0] is xs and xs[0].tobytes() == np.asarray(x0, dtype=float).tobytes():
+        return kept[1]
+    return ctl.discs.centres(np.vstack((x0[None], xs[1:])))
+
+
+def _disc_margins(pts: np.ndarray, bs: np.ndarray) -> np.ndarray:
+    """:meth:`DiscCover.margins` from the disc centres ``pts`` (K, D, 2) [m] and the boxes
+    ``bs`` (D, K, 4) [m], vectorised over the discs (the same minima in the same order):
+    (K,) [m] the smallest slack of any centre in its own box."""
+    p = pts.transpose(1, 0, 2)
+    return np.concatenate((p - bs[..., :2], bs[..., 2:] - p), axis=2).min(axis=2).min(axis=0)
+
+
+def _assign_shared(chain: CorridorChain, both: np.ndarray, pts: np.ndarray, s_prev: np.ndarray | None,
+                   tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`DiscCover.assign` when every disc walks the same ``chain`` (not a pose route),
+    vectorised over the discs with the same arithmetic: assignments (D, N+1) and their stage
+    boxes (D, N+1, 4) [m] of the disc centres ``pts`` (N+1, D, 2) [m]. ``both`` (2L, 4) is
+    ``chain.stay`` and ``chain.advance`` stacked (:func:`assign_stages`' table, built once per
+    plan); ``s_prev`` (D, N+1) or None the previous assignments; ``tol`` [m] as in
+    :func:`assign_stages`. The distances of all centres to all members come from one call;
+    each disc's assignment from the bit sets of :func:`~sanav_mj.control.stages.assign_feasible`
+    (the fast path of :func:`assign_stages`; :func:`feasible_from_bits`), or from
+    :func:`assign_stages` itself when no assignment fits."""
+    n1, n_d = pts.shape[:2]
+    n_m = len(chain)
+    d2 = _outside_sq(pts.transpose(1, 0, 2).reshape(-1, 2), both).reshape(n_d, n1, 2 * n_m)
+    d2[d2 < tol * tol] = 0.0
+    ss = np.empty((n_d, n1), dtype=int)
+    if n_m <= 62:  # assign_feasible's bit sets of all discs at once
+        weights = np.left_shift(np.int64(1), np.arange(n_m, dtype=np.int64))
+        zero = d2 == 0.0
+        stay, adv = (zero[..., :n_m] @ weights).tolist(), (zero[..., n_m:] @ weights).tolist()
+    last = None  # (bit sets, mask, assignment) of the previous disc
+    for d in range(n_d):
+        cand = first_candidates(n_m, None if s_prev is None else s_prev[d])
+        s = None
+        if n_m <= 62:
+            mask = None
+            if cand is not None and np.min(d2[d, 0, :n_m][cand]) <= REANCHOR_M**2:
+                mask = int(cand.astype(np.int64) @ weights)
+            if last is not None and last[0] == stay[d] and last[1] == adv[d] and last[2] == mask:
+                s = last[3]  # the same bit sets (discs in the same members): the same answer
+            else:
+                s = feasible_from_bits(stay[d], adv[d], mask)
+                last = (stay[d], adv[d], mask, s)
+        ss[d] = assign_stages(chain, pts[:, d], cand, tol=tol) if s is None else s
+    plain = chain.stay[ss]
+    adv = np.diff(ss, axis=1) > 0
+    plain[:, 1:][adv] = chain.advance[ss[:, 1:][adv]]
+    return ss, plain
+
+
+def _relax_all(plain: np.ndarray, pts0: np.ndarray, tighten: tuple[float, bool] | None) -> tuple[np.ndarray, float]:
+    """:meth:`DiscCover.relax` vectorised over the discs with the same arithmetic: the stage
+    boxes (D, N+1, 4) [m] from ``plain`` (D, N+1, 4) [m] relaxed around each disc's stage-0
+    centre ``pts0`` (D, 2) [m] (:func:`relax_boxes`), or with ``tighten`` ``(delta, follow)``
+    tightened with a capped relaxation (:func:`~sanav_mj.control.stages.tighten_relax`), and
+    the largest excursion [m] of a stage-0 centre."""
+    exc0 = plain[:, 0]
+    below = np.maximum(exc0[:, :2] - pts0, 0.0)
+    above = np.maximum(pts0 - exc0[:, 2:], 0.0)
+    e = np.hypot(*(below + above).T)
+    excursion = max(0.0, float(np.max(e)))
+    if tighten is None:
+        t = plain
+    else:
+        delta, follow = tighten
+        t = shrink_box(plain, delta) if delta > 0 else plain.copy()
+        below = np.maximum(t[:, 0, :2] - pts0, 0.0)
+        above = np.maximum(pts0 - t[:, 0, 2:], 0.0)
+    moved = np.flatnonzero(below.any(axis=1) | above.any(axis=1))
+    out = t.copy() if tighten is None else t
+    if moved.size:  # only the discs whose centre lies beyond its stage-0 box (as relax_boxes)
+        out[moved, 1:, :2] -= below[moved, None, :]
+        out[moved, 1:, 2:] += above[moved, None, :]
+    if tighten is not None and not tighten[1]:
+        out[:, 1:, :2] = np.maximum(out[:, 1:, :2], plain[:, 1:, :2])
+        out[:, 1:, 2:] = np.minimum(out[:, 1:, 2:], plain[:, 1:, 2:])
+    return out, excursion
+
+
+def _route_tables(ctl: SAMPC, areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
+    """:func:`_pose_route_tables` and the reference states and inputs ``ctl`` follows: in
+    ``"discs"`` mode with a corridor reference moved to poses whose disc centres stay in the
+    chain (:func:`~sanav_mj.control.disc_stages.footprint_reference`), else as tabled."""
+    stops, chains = _pose_route_tables(areas, plan, box_margin, dt)
+    if ctl.discs is None or chains is not None:
+        return stops, chains, ctl.ref_states, ctl.ref_inputs
+    return (stops, chains, *footprint_reference(ctl.discs, ctl.chain, ctl.ref_states, ctl.ref_inputs, dt))
 
 
 def _pose_route_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: float):
@@ -422,7 +550,6 @@ class SAMPC(TrackingMPC):
         dt = float(config.dt)
         adaptation = PlantAdaptation(robot, dt, limits.v_max, limits.w_max, limits.a_max,
                                      limits.lower(), limits.upper(), config.adaptation)
-        self._set_plan(areas, plan, config.stage_box_margin, dt)
         self.penalty = SafeAreaPenalty(len(config.q_sa))
         self.discs: DiscCover | None = None
         if config.footprint == "discs":
@@ -430,6 +557,7 @@ class SAMPC(TrackingMPC):
                 raise ValueError("footprint: MPCConfig.footprint='discs' needs the robot's Footprint, got None")
             self.discs = DiscCover.of(footprint, config.footprint_discs)
             self._escape = StallEscape(config.horizon)
+        self._set_plan(areas, plan, config.stage_box_margin, dt)
         pts = None if self.discs is None else self.discs.offsets
         ocp = build_tracking_ocp(config.horizon, dt, self.penalty, position_constraints=True, points=pts)
         super().__init__(robot, config, limits, ocp, adaptation, failure_injector=failure_injector)
@@ -443,8 +571,8 @@ class SAMPC(TrackingMPC):
     def _set_plan(self, areas: SafeAreas, plan: Plan, box_margin: float, dt: float) -> None:
         self.areas, self._rects, self.plan = areas, np.asarray(areas.rects, dtype=float), plan
         self.chain, self.ref_states, self.ref_inputs, self._ref_chain = _plan_tables(areas, plan, box_margin, dt)
-        self._sa_cache: dict[tuple[int, int], np.ndarray] = {}
-        self._stops, self.disc_chains = _pose_route_tables(areas, plan, box_margin, dt)
+        self._sa_cache, self._both = {}, np.concatenate((self.chain.stay, self.chain.advance))  # J_SA, _assign_shared
+        self._stops, self.disc_chains, self.ref_states, self.ref_inputs = _route_tables(self, areas, plan, box_margin, dt)
 
     def replace_plan(self, areas: SafeAreas, plan: Plan) -> None:
         """Follow a new corridor and reference (a successful plan on ``areas`` starting at the
@@ -471,7 +599,7 @@ class SAMPC(TrackingMPC):
         pose = np.asarray(pose, dtype=float).reshape(3)
         super().reset(pose, u_prev=u_prev, opening_turn=opening_turn)
         self._s_prev: np.ndarray | None = None
-        self._s_prev_d: np.ndarray | None = None
+        self._s_prev_d, self._centres_of = None, None  # _centres_of: see _disc_rows
         if self.discs is not None:
             self._escape.reset()
         self.last: StepInfo | None = None
@@ -520,7 +648,7 @@ class SAMPC(TrackingMPC):
 
     def position_rows(self, xs: np.ndarray) -> np.ndarray:
         """The position rows of ``g`` for the rollout ``xs`` (N+1, 3): positions or disc centres of stages 1..N."""
-        return (xs[1:, :2] if self.discs is None else self.discs.centres(xs[1:])).ravel()
+        return xs[1:, :2].ravel() if self.discs is None else _disc_rows(self, xs)
 
     def turn_allowed(self, x0: np.ndarray) -> bool:
         """``"disc"``: always; ``"discs"``: where the centres' sweep fits (:meth:`DiscCover.turn_allowed`)."""
@@ -544,7 +672,7 @@ class SAMPC(TrackingMPC):
         if self.discs is None:
             margins = np.concatenate(([box_slack(x0[None, :2], boxes[:1])[0]], box_slack(xs[1:, :2], boxes[1:])))
         else:
-            margins = self.discs.margins(np.vstack((x0[None], xs[1:])), context[3])
+            margins = _disc_margins(_plan_centres(self, xs, x0), context[3])
         chain = self.chain if self.disc_chains is None else self.disc_chains[self.discs.centre]
         return stage_rect_ids(chain, self._rects, s, xs[:, :2]), margins
 

@@ -168,6 +168,7 @@ class CorridorChain:
         if free is None:
             return CorridorChain(boxes, np.array(pairs, dtype=int), stay, adv)
         grown = np.array([grow_rect(free, b) for b in boxes])
+        roomier = _roomier_bridges(free, grown)
         # the grown boxes shrunk by margin + tighten, but per side never tighter than the plain ones
         # (uncapped: where that inverts a box, the plain side is the looser one)
         inset = np.array([1.0, 1.0, -1.0, -1.0])
@@ -175,9 +176,43 @@ class CorridorChain:
         g_adv = np.empty_like(grown)
         g_adv[0] = g_stay[0]
         g_adv[1:] = _looser(adv[1:], box_intersection(grown[:-1], grown[1:]) + (margin + free.tighten) * inset)
+        for j in roomier:  # no plain room to keep: the plain bridge need not lie in the new one
+            g_stay[j] = shrink_box(grown[j], margin + free.tighten)
+            g_adv[j:j + 2] = shrink_box(box_intersection(grown[j - 1:j + 1], grown[j:j + 2]), margin + free.tighten)
         for k in range(len(corridor)):  # J_SA's area rectangles: as their members
             area_rects[corridor[k]] = _looser(rects[corridor[k]], grown[2 * k] + free.tighten * inset)
         return CorridorChain(grown, np.array(pairs, dtype=int), g_stay, g_adv, area_rects)
+
+
+def _roomier_bridges(free, grown: np.ndarray) -> list[int]:
+    """Replace in place each bridge of the grown chain ``grown`` (L, 4) [m] (odd rows) by the
+    maximal free rectangle grown from the overlap of its grown neighbours when that one is
+    roomier: its shorter side longer than the bridge's.
+
+    The bridge grown from the portal strip between two areas is maximal, but where a passage
+    turns into a narrow one it is the narrow passage's strip (a grown safe area reaching along
+    it), which leaves a footprint no room to swing round the corner (barn_0014: a 0.1 m wide
+    bridge beside 0.35 m of free cells). The rectangle grown from the neighbours' overlap
+    holds only free cells and contains that overlap, so consecutive members still overlap
+    with positive area and the chain's contract holds. Returns the rows replaced."""
+    from sanav_mj.mapping.grow import grow_rect
+
+    out = []
+    for j in range(1, len(grown) - 1, 2):
+        seed = box_intersection(grown[j - 1], grown[j + 1])
+        w = seed[2:] - seed[:2]
+        if np.any(w < 0.5 * free.resolution):
+            continue
+        o = np.tile(free.origin, 2)
+        seed = o + np.rint((seed - o) / free.resolution) * free.resolution
+        try:
+            cand = grow_rect(free, seed)
+        except ValueError:
+            continue
+        if np.min(cand[2:] - cand[:2]) > np.min(grown[j, 2:] - grown[j, :2]) + 1e-9:
+            grown[j] = cand
+            out.append(j)
+    return out
 
 
 def _looser(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -295,8 +330,17 @@ def assign_feasible(v: np.ndarray, L: int, first_candidates, reanchor_distance: 
     """
     weights = np.left_shift(np.int64(1), np.arange(L, dtype=np.int64))
     zero = v == 0.0
-    stay = (zero[:, :L] @ weights).tolist()
-    adv = (zero[:, L:] @ weights).tolist()
+    first_mask = None
+    if first_candidates is not None and np.min(v[0, :L][first_candidates]) <= reanchor_distance**2:
+        first_mask = int(first_candidates.astype(np.int64) @ weights)
+    return feasible_from_bits((zero[:, :L] @ weights).tolist(), (zero[:, L:] @ weights).tolist(), first_mask)
+
+
+def feasible_from_bits(stay: list[int], adv: list[int], first_mask: int | None) -> np.ndarray | None:
+    """:func:`assign_feasible` from its bit sets: ``stay[k]`` / ``adv[k]`` (N+1 ints) have
+    bit ``j`` set when stage k's position is (within the tolerance) in member j's stay /
+    advance box; ``first_mask`` (bits of the members allowed for stage 0) or None. The
+    assignment (N+1,) int, or None when no zero-violation assignment exists."""
     n1 = len(stay)
     reach = [0] * n1
     r = stay[-1]
@@ -306,8 +350,8 @@ def assign_feasible(v: np.ndarray, L: int, first_candidates, reanchor_distance: 
         r = (stay[k + 1] & r) | ((adv[k + 1] & r) >> 1)
         reach[k] = r
     first = stay[0] & reach[0]
-    if first_candidates is not None and np.min(v[0, :L][first_candidates]) <= reanchor_distance**2:
-        first &= int(first_candidates.astype(np.int64) @ weights)
+    if first_mask is not None:
+        first &= first_mask
     if first == 0:
         return None
     s = np.empty(n1, dtype=int)

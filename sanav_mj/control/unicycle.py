@@ -84,23 +84,22 @@ def rollout_np(x0: np.ndarray, us: np.ndarray, dt: float) -> np.ndarray:
         (N+1, 3) [m, m, rad] states, the first being ``x0``.
     """
     us = np.asarray(us, dtype=float).reshape(-1, 2)
-    n = us.shape[0]
-    xs = np.empty((n + 1, 3))
     px, py, th = (float(c) for c in np.asarray(x0, dtype=float).reshape(3))
-    xs[0] = px, py, th
-    # Plain floats: for N ~ 20 this is several times faster than per-step NumPy calls.
+    rows = [(px, py, th)]
+    # Plain floats: for N ~ 20 this is several times faster than per-step NumPy calls; the
+    # polynomial is _sinc_poly's Horner scheme written out (the same operations in the same order).
     cos, sin = math.cos, math.sin
-    for k in range(n):
-        v = float(us[k, 0])
-        w = float(us[k, 1])
+    c0, c1, c2, c3, c4, c5, c6 = _SINC_COEFFS
+    for v, w in us.tolist():
         half = 0.5 * w * dt
-        ds = v * dt * _sinc_poly(half * half)
+        a2 = half * half
+        ds = v * dt * ((((((c6 * a2 + c5) * a2 + c4) * a2 + c3) * a2 + c2) * a2 + c1) * a2 + c0)
         mid = th + half
         px += ds * cos(mid)
         py += ds * sin(mid)
         th += w * dt
-        xs[k + 1] = px, py, th
-    return xs
+        rows.append((px, py, th))
+    return np.array(rows, dtype=float).reshape(-1, 3)
 
 
 def step_cs(x, u, dt: float):

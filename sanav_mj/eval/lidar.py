@@ -126,7 +126,8 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
         ValueError: ``"discs"`` with ``footprint_route="pose"`` (a known-map setting: the pose
             search takes about a second per plan).
     """
-    from sanav_mj.control.sensing import SensingConfig, SensingSAMPC
+    from sanav_mj.control.sensing import SensingSAMPC
+    from sanav_mj.control.sensing_config import SensingConfig
     from sanav_mj.footprint import robot_footprint
     from sanav_mj.mapping.sensed_map import SensedMapConfig
     from sanav_mj.sim.lidar import lidar_config

@@ -6,7 +6,7 @@ import numpy as np
 
 from sanav_mj.control.base import Observation
 from sanav_mj.control.localisation import ScanLocaliser
-from sanav_mj.control.sensing import SensingConfig
+from sanav_mj.control.sensing_config import SensingConfig
 
 
 class _NoMap:

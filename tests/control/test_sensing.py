@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from sanav_mj.control.base import Observation
-from sanav_mj.control.sensing import SensingConfig, SensingSAMPC, grid_cells, in_ok_cells
+from sanav_mj.control.sensing import SensingSAMPC, grid_cells, in_ok_cells
+from sanav_mj.control.sensing_config import SensingConfig
 from sanav_mj.mapping.live_grid import OCCUPIED
 from sanav_mj.scene import load_scenario
 

@@ -107,3 +107,35 @@ def test_tightened_growth_keeps_the_plain_room_and_tightens_only_the_added_room(
     d = plain.boxes[k, 0] - loose.boxes[k, 0]
     assert tight.stay[k, 0] == pytest.approx(min(plain.stay[k, 0], loose.boxes[k, 0] + 0.01 + 0.05))
     assert d > 0
+
+
+def l_turn_grid() -> OccupancyGrid:
+    """A passage 5 cells (0.25 m) tall along x turning up into one 2 cells (0.1 m) wide, with
+    free cells below the junction: the portal bridge, grown, is the narrow passage."""
+    n = 20
+    free = np.zeros((n, n), bool)
+    free[4:9, 0:15] = True  # the wide passage, y 0.2..0.45, x 0..0.75
+    free[4:, 13:15] = True  # the narrow one going up, x 0.65..0.75
+    free[1:4, 8:14] = True  # room below the junction
+    return OccupancyGrid(~free, H, np.zeros(2), 0.0, np.array([0.0, 0.0, n * H, n * H]))
+
+
+def test_bridge_at_a_turn_into_a_narrow_passage_is_the_roomier_free_rectangle():
+    g = l_turn_grid()
+    m = build_safe_areas(g)
+    corridor = corridor_between(m.areas, (0.025, 0.325), (0.725, 0.975))
+    cells = FreeCells.of(g)
+    chain = CorridorChain.build(replace(m.areas, free=cells), corridor, 0.0)
+    assert len(chain) == 3
+    # the portal strip grown is the narrow passage (0.1 m); the overlap of the grown areas,
+    # grown, is the wide passage (0.25 m): room for the footprint to swing round
+    np.testing.assert_allclose(chain.boxes[1], [0.0, 0.2, 0.75, 0.45], atol=1e-12)
+    inter = box_intersection(chain.boxes[:-1], chain.boxes[1:])
+    assert np.all(inter[:, 2:] - inter[:, :2] > 0)  # consecutive members overlap
+    for box in np.concatenate((chain.boxes, chain.stay, chain.advance[1:])):
+        i0, j0, i1, j1 = cells.cells_of(box)
+        assert not g.occupied[i0:i1, j0:j1].any()  # only free cells
+    # with a margin the stage boxes are the members shrunk (the plain bridge is not kept)
+    m2 = CorridorChain.build(replace(m.areas, free=cells), corridor, 0.02)
+    np.testing.assert_allclose(m2.stay[1], [0.02, 0.22, 0.73, 0.43], atol=1e-12)
+    np.testing.assert_allclose(m2.advance[2], [0.67, 0.22, 0.73, 0.43], atol=1e-12)

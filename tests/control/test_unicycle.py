@@ -90,3 +90,39 @@ def test_arc_chord_deviation_against_sampled_arc():
         dist = np.abs(d[0] * (pts[:, 1] - a[1]) - d[1] * (pts[:, 0] - a[0])) / np.hypot(*d)
         assert abs(arc_chord_deviation(v, w, dt) - dist.max()) < 1e-9
         assert arc_chord_deviation(v, w, dt) <= abs(v * w) * dt**2 / 8 + 1e-15
+
+
+def _rollout_reference(x0, us, dt):
+    """The per-step loop rollout_np replaced (numpy rows set one by one, _sinc_poly called)."""
+    import math
+
+    from sanav_mj.control.unicycle import _sinc_poly
+
+    us = np.asarray(us, dtype=float).reshape(-1, 2)
+    xs = np.empty((us.shape[0] + 1, 3))
+    px, py, th = (float(c) for c in np.asarray(x0, dtype=float).reshape(3))
+    xs[0] = px, py, th
+    for k in range(us.shape[0]):
+        v, w = float(us[k, 0]), float(us[k, 1])
+        half = 0.5 * w * dt
+        ds = v * dt * _sinc_poly(half * half)
+        mid = th + half
+        px += ds * math.cos(mid)
+        py += ds * math.sin(mid)
+        th += w * dt
+        xs[k + 1] = px, py, th
+    return xs
+
+
+def test_rollout_np_is_bit_identical_to_the_per_step_loop():
+    from sanav_mj.control.unicycle import rollout_np
+
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 5, 20, 40):
+        for _ in range(50):
+            x0 = rng.normal(0, 3, 3)
+            us = np.column_stack((rng.uniform(-1, 1, n), rng.uniform(-3, 3, n)))
+            us[rng.random(n) < 0.1] = 0.0
+            got, ref = rollout_np(x0, us, 0.1), _rollout_reference(x0, us, 0.1)
+            assert got.shape == ref.shape == (n + 1, 3) and got.dtype == ref.dtype
+            assert np.array_equal(got, ref) and np.array_equal(np.signbit(got), np.signbit(ref))

@@ -337,7 +337,7 @@ def test_discs_lidar_controller_narrow_width():
     ({"straight_brake": "yes"}, "straight_brake"),
 ])
 def test_sensing_config_discs_fields_are_validated(kwargs, match):
-    from sanav_mj.control.sensing import SensingConfig
+    from sanav_mj.control.sensing_config import SensingConfig
 
     with pytest.raises(ValueError, match=match):
         SensingConfig(**kwargs)

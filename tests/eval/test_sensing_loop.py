@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from _helpers import cells_of_box
-from sanav_mj.control.sensing import SensingConfig, SensingSAMPC
+from sanav_mj.control.sensing import SensingSAMPC
+from sanav_mj.control.sensing_config import SensingConfig
 from sanav_mj.mapping.live_grid import OCCUPIED
 from sanav_mj.eval.episode import run_scenario
 from sanav_mj.eval.lidar import lidar_controller
