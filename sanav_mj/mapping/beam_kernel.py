@@ -269,7 +269,8 @@ static int64_t spread(int64_t n, const int64_t *cells, const int8_t *d, int64_t 
    mark == 2 and applied (max), mark reset to 0; states (L <= free_thresh: free,
    L >= occ_thresh: occupied); the count of non-free cells spread where the free state
    flipped, the count of route-blocking cells (occupied, or ever hit) where that flipped.
-   par = {l_free, l_occ, l_min, l_max, free_thresh, occ_thresh, hit_floor} (float32).
+   par = {l_free, l_occ, l_min, l_max, free_thresh, occ_thresh, hit_floor, floor_at} (float32): a
+   return raises the floor only where the clamped new value is >= floor_at (-inf: every return).
    The route counts use their own kernel (K2, koff2, nrows2, rows2: within radius r as well).
    Outputs: state_out (cells whose state changed, in touched order), safe_out / route_out
    (sorted grid cells whose count crossed zero); n_out = {states, safe, route}.
@@ -281,7 +282,7 @@ void sanav_commit(int64_t T, const int64_t *touched, int8_t *mark, float *lo, fl
                   const int64_t *rows, int64_t K2, const int64_t *koff2, int64_t nrows2, const int64_t *rows2)
 {
     const float delta[3] = {0.0f, par[0], par[1]};
-    const float l_min = par[2], l_max = par[3], ft = par[4], ot = par[5], hf = par[6];
+    const float l_min = par[2], l_max = par[3], ft = par[4], ot = par[5], hf = par[6], fa = par[7];
     int64_t ns = 0, nr = 0;
     for (int64_t t = 0; t < T; ++t) {
         const int64_t c = touched[t];
@@ -294,7 +295,7 @@ void sanav_commit(int64_t T, const int64_t *touched, int8_t *mark, float *lo, fl
         if (has_floor) {
             float f = floor_[c];
             hit_old = f == hf;
-            if (m == 2) { f = hf; floor_[c] = hf; }
+            if (m == 2 && v >= fa) { f = hf; floor_[c] = hf; }
             hit_new = f == hf;
             if (v < f) v = f;
         }
@@ -547,7 +548,9 @@ def commit_cells(touched: np.ndarray, mark: np.ndarray, log_odds: np.ndarray, fl
         log_odds, floor: (ny * nx,) or (ny, nx) float32 log-odds and per-cell lower clamp,
             updated in place (long-lived buffers, as ``mark``, ``pad``, ``route``, ``koff``,
             ``params`` and ``rows``: their addresses are cached, :func:`buffer_address`).
-        params: (7,) float32 ``l_free, l_occ, l_min, l_max, free_thresh, occ_thresh, hit_floor``.
+        params: (8,) float32 ``l_free, l_occ, l_min, l_max, free_thresh, occ_thresh, hit_floor,
+            floor_at`` (a return raises the floor only where the clamped new log-odds is
+            ``>= floor_at``; ``-inf``: every return).
         has_floor: apply ``hit_floor`` (False: plain clamping).
         shape: (ny, nx) grid shape.
         r: padding [cells] of the count arrays (the kernel radius).

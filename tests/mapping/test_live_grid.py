@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+from dataclasses import replace
 import math
 
 import numpy as np
@@ -144,8 +145,9 @@ def test_a_hit_cell_never_turns_free_again():
         LiveGridConfig(hit_floor=-0.5)
 
 
-def test_one_return_makes_a_well_seen_free_cell_unsafe():
-    g = LiveGrid((0, 0, 4, 4), 0.1, 0.0)
+def test_one_return_makes_a_well_seen_free_cell_unsafe_without_floor_at():
+    c = LiveGridConfig(l_min=-1.0, floor_at=None)  # the rule before floor_at: one return, non-free
+    g = LiveGrid((0, 0, 4, 4), 0.1, 0.0, c)
     for _ in range(20):  # cell (5, 25) crossed 20 times: log-odds at the lower clamp
         g.integrate((0.55, 0.55), 0.0, [3.0], [True], [0.0])
     assert g.states()[5, 25] == FREE and g.log_odds[5, 25] == g.config.l_min
@@ -153,7 +155,55 @@ def test_one_return_makes_a_well_seen_free_cell_unsafe():
     assert g.states()[5, 25] != FREE
     assert 5 * 40 + 25 in up.state_changed.tolist()
     with pytest.raises(ValueError, match="one return"):
-        LiveGridConfig(l_min=-2.0, l_occ=1.0)
+        LiveGridConfig(l_min=-2.0, l_occ=1.0, floor_at=None)
+
+
+@pytest.mark.parametrize("use_kernel", [True, False])
+def test_a_well_seen_free_cell_needs_several_returns_then_keeps_its_floor(use_kernel):
+    """Default (floor_at): a cell at l_min turns non-free only after the k-th return in a
+    row, k = the least with l_min + k l_occ > free_thresh (5), and its floor is raised only
+    once a return brings it to floor_at (the 6th): after that it never turns free again.
+    A cell hit in one scan of five (hit fraction 0.2, below -l_free / (l_occ - l_free))
+    stays free throughout; one hit in every other scan (0.5, above) makes it occupied."""
+    c = LiveGridConfig()
+    k = math.floor((c.free_thresh - c.l_min) / c.l_occ + 1e-9) + 1
+    assert k == 5
+    g = LiveGrid((0, 0, 4, 4), 0.1, 0.0, c)
+    g._use_kernel = g._use_commit_kernel = use_kernel
+    for _ in range(20):  # cell (5, 25) crossed 20 times: log-odds at the lower clamp
+        g.integrate((0.55, 0.55), 0.0, [3.0], [True], [0.0])
+    assert g.states()[5, 25] == FREE and g.log_odds[5, 25] == c.l_min
+    for n in range(1, k + 2):
+        g.integrate((0.55, 0.55), 0.0, [2.0], [True], [0.0])  # a return in cell (5, 25)
+        assert (g.states()[5, 25] == FREE) == (n < k)
+        assert (g._floor.reshape(g.shape)[5, 25] == c.hit_floor) == (n == k + 1)  # L = 1.0 >= floor_at
+    for _ in range(30):
+        g.integrate((0.55, 0.55), 0.0, [3.0], [True], [0.0])
+        assert g.states()[5, 25] != FREE
+    # a rare hit (1 scan in 5) leaves a free cell free: +l_occ, then 4 l_free back to l_min
+    g2 = LiveGrid((0, 0, 4, 4), 0.1, 0.0, c)
+    g2._use_kernel = g2._use_commit_kernel = use_kernel
+    for n in range(60):
+        g2.integrate((0.55, 0.55), 0.0, [2.0 if n % 5 == 4 else 3.0], [True], [0.0])
+        if n >= 1:
+            assert g2.states()[5, 25] == FREE
+    # one hit in two scans: occupied, floor raised
+    for n in range(20):
+        g2.integrate((0.55, 0.55), 0.0, [2.0 if n % 2 else 3.0], [True], [0.0])
+    assert g2.states()[5, 25] == OCCUPIED and g2._floor.reshape(g2.shape)[5, 25] == c.hit_floor
+    with pytest.raises(ValueError, match="floor_at"):
+        LiveGridConfig(floor_at=-0.5)
+    with pytest.raises(ValueError, match="noise_cells"):
+        LiveGridConfig(noise_cells=-1)
+
+
+def test_noise_cells_widen_the_safe_and_route_kernels_by_whole_cells():
+    h, infl = 0.025, 0.27
+    g0 = LiveGrid((0, 0, 2, 2), h, infl)
+    g1 = LiveGrid((0, 0, 2, 2), h, infl, LiveGridConfig(noise_cells=1))
+    assert set(map(tuple, g1._offsets.tolist())) == set(map(tuple, inflation_offsets(infl + h, h).tolist()))
+    assert set(map(tuple, g0._offsets.tolist())) < set(map(tuple, g1._offsets.tolist()))
+    assert np.array_equal(g1._route_offsets, g1._offsets)
 
 
 def test_sparse_and_dense_count_spreading_agree():
@@ -253,7 +303,8 @@ def test_safe_grid_is_occupancy_grid_compatible():
 
 def test_log_odds_match_a_per_cell_reference_over_many_scans():
     """Each cell changes once per scan however many beams cross it (the deduplication in
-    integrate), by l_occ when a return lies in it, else by l_free; clamped, hit floor kept.
+    integrate), by l_occ when a return lies in it, else by l_free; clamped, hit floor
+    raised by a return that brings the cell to floor_at, and kept.
     Reference: plain per-cell loop over the distinct crossed cells (crossed_cells + set)."""
     from sanav_mj.mapping.live_grid import crossed_cells
 
@@ -277,11 +328,11 @@ def test_log_odds_match_a_per_cell_reference_over_many_scans():
         free = set(crossed_cells(np.full(len(a), u0), np.full(len(a), v0), u1, v1, ny, nx).tolist())
         occ = {int(math.floor(v1[b])) * nx + int(math.floor(u1[b])) for b in np.flatnonzero(hit)
                if 0 <= math.floor(v1[b]) < ny and 0 <= math.floor(u1[b]) < nx}
-        for cell in occ:
-            floor[cell] = c.hit_floor
         for cell in free | occ:
             d = np.float32(c.l_occ if cell in occ else c.l_free)
             v = np.clip(ref[cell] + d, c.l_min, c.l_max).astype(np.float32)
+            if cell in occ and v >= np.float32(c.floor_at):
+                floor[cell] = c.hit_floor
             ref[cell] = max(v, floor[cell])
         assert np.array_equal(g.log_odds.reshape(-1), ref)
     assert np.count_nonzero(ref < 0) > 200 and np.count_nonzero(ref > 1.5) > 20
@@ -367,6 +418,7 @@ def test_the_compiled_traversal_lands_in_the_cache_folder(tmp_path, monkeypatch)
 
 
 @pytest.mark.parametrize("config, inflation", [(LiveGridConfig(), 0.23), (LiveGridConfig(hit_floor=None), 0.23),
+                                               (LiveGridConfig(l_min=-1.0, floor_at=None, noise_cells=1), 0.23),
                                                (LiveGridConfig(l_free=-0.7, l_occ=2.0, l_min=-2.0), 0.0)])
 def test_compiled_commit_equals_the_numpy_commit(config, inflation):
     """The compiled log-odds commit and count spreading (sanav_commit) against the NumPy
@@ -490,10 +542,12 @@ def _cast_boxes(o, ang, boxes, rmax):
 @pytest.mark.parametrize("seed", [0, 1])
 def test_route_grid_keeps_a_gap_the_known_map_passes(seed):
     """A 0.63 m gap in a wall, scanned with 0.02 m range noise at 0.025 m cells and 0.27 m
-    inflation (the discs mode's): the known map (true boxes, same inflation) passes it; the
-    route grid with the square-to-square kernel closes it (return cells up to a few cells in
-    front of the surface, one more cell from the kernel), the centre kernel (opt-in) keeps
-    it open; the safe grid is the same with either."""
+    inflation (the discs mode's): the known map (true boxes, same inflation) passes it; so
+    do the default grid's route and safe cells (floor_at: rare returns in front of the
+    surface, the minimum of many noisy ranges, are outvoted by the beams passing there), and
+    no safe cell is one the known map calls occupied. Without floor_at (every return raises
+    the floor: such cells are never free again) the square route kernel closes the gap, the
+    centre kernel (opt-in) keeps the route open; the safe grid is the same with either."""
     from scipy import ndimage
 
     from sanav_mj.mapping.occupancy import rasterise
@@ -502,7 +556,9 @@ def test_route_grid_keeps_a_gap_the_known_map_passes(seed):
     h, infl, gap = 0.025, 0.27, 0.63
     bounds = (0.0, 0.0, 3.0, 3.0)
     boxes = [(0.0, 2.0, 1.5 - gap / 2, 2.3), (1.5 + gap / 2, 2.0, 3.0, 2.3)]
-    grids = {k: LiveGrid(bounds, h, infl, LiveGridConfig(route_kernel=k)) for k in ("square", "centre")}
+    old = LiveGridConfig(l_min=-1.0, floor_at=None)
+    grids = {k: LiveGrid(bounds, h, infl, replace(old, route_kernel=k)) for k in ("square", "centre")}
+    grids["default"] = LiveGrid(bounds, h, infl)
     rng = np.random.default_rng(seed)
     ang = np.linspace(-np.pi, np.pi, 1080, endpoint=False)
     for _ in range(20):
@@ -521,9 +577,35 @@ def test_route_grid_keeps_a_gap_the_known_map_passes(seed):
         return bool(a and a == b)
 
     assert through(known_free)
+    assert through(grids["default"].route_safe()) and through(grids["default"].safe())
+    assert not np.any(grids["default"].safe() & ~known_free)
     assert not through(grids["square"].route_safe())
     assert through(grids["centre"].route_safe())
     # the kernel choice leaves the map and the safe grid alone; safe implies route-safe
     assert np.array_equal(grids["centre"].log_odds, grids["square"].log_odds)
     assert np.array_equal(grids["centre"].safe(), grids["square"].safe())
     assert np.all(grids["centre"].route_safe() | ~grids["centre"].safe())
+
+
+def test_the_default_threshold_separates_material_cells_from_cells_in_front():
+    """The sensor model behind LiveGridConfig.floor_at, at the robot's lidar (0.02 m range
+    noise, models/diff_drive.xml) on the discs mode's 0.025 m cells: every cell holding
+    obstacle material, and the one just in front, is hit by more than f* = -l_free /
+    (l_occ - l_free) of the beams reaching it (the log-odds drift up: locked non-free), every
+    cell 1.5 cells or more in front by fewer (they end free). Exact values: the cell
+    entirely in front with the surface at its back edge 0.4409, at 2 cells in front 0.1001."""
+    from sanav_mj.mapping.live_grid import beam_hit_fraction
+
+    c, sigma = 0.025, 0.02
+    cfg = LiveGridConfig()
+    f_star = -cfg.l_free / (cfg.l_occ - cfg.l_free)
+    material = beam_hit_fraction(np.linspace(-0.05, c, 201), c, sigma)  # up to the cell just in front
+    front = beam_hit_fraction(np.linspace(1.5 * c, 10 * c, 201), c, sigma)
+    assert material.min() > 0.44 > f_star + 0.15 and front.max() < f_star
+    assert beam_hit_fraction(c, c, sigma) == pytest.approx(0.4409349, abs=1e-6)
+    assert beam_hit_fraction(2 * c, c, sigma) == pytest.approx(0.1000615, abs=1e-6)
+    # monotone: deeper into the obstacle, more of the reaching beams end in the cell
+    d = np.linspace(-0.05, 0.1, 301)
+    assert np.all(np.diff(beam_hit_fraction(d, c, sigma)[::-1]) >= -1e-12)
+    with pytest.raises(ValueError, match="sigma"):
+        beam_hit_fraction(0.0, c, 0.0)
