@@ -4,6 +4,9 @@
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import mujoco
@@ -13,6 +16,7 @@ from sanav_mj.eval.prepare import Prepared
 from sanav_mj.mapping.occupancy import OccupancyGrid
 from sanav_mj.mapping.quadtree import QuadtreeLeaves
 from sanav_mj.mapping.safe_areas import SafeAreaMap, SafeAreas
+from sanav_mj.native import NO_KERNEL_ENV
 from sanav_mj.planning.reference import Plan, Reference
 from sanav_mj.resources import robot_model_path
 from sanav_mj.scene import Obstacle, RobotParams, Scenario
@@ -57,3 +61,11 @@ def cells_of_box(box, origin, h: float, shape: tuple[int, int]) -> tuple[slice, 
     j1 = int(np.clip(math.ceil((box[2] - origin[0]) / h - 1e-9), 0, nx))
     i1 = int(np.clip(math.ceil((box[3] - origin[1]) / h - 1e-9), 0, ny))
     return slice(i0, i1), slice(j0, j1)
+
+
+def run_without_kernels(code: str) -> str:
+    """The standard output of ``code`` run by a fresh Python process with the compiled
+    kernels switched off (:data:`sanav_mj.native.NO_KERNEL_ENV` = 1; the NumPy reference
+    paths run instead), from the current directory; raises CalledProcessError when it fails."""
+    env = dict(os.environ, **{NO_KERNEL_ENV: "1"})
+    return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout

@@ -88,12 +88,17 @@ def _with_free(areas: SafeAreas, free: FreeCells | None) -> SafeAreas:
     return areas if free is None else replace(areas, free=free)
 
 
-def _growing(areas: SafeAreas, sensed: SensedMap, grow: float, tighten: float) -> SafeAreas:
+def _growing(areas: SafeAreas, sensed: SensedMap, grow: float, tighten: float,
+             table: FreeCells | None = None) -> SafeAreas:
     """``areas`` carrying the :class:`~sanav_mj.mapping.grow.FreeCells` of the cells safe in
     ``sensed`` now (growth limit ``grow`` [m], ``tighten`` [m]), so SA-MPC's corridor chain
-    grows its boxes into them (``SensingConfig.grow``); ``areas`` itself when ``grow`` is 0."""
+    grows its boxes into them (``SensingConfig.grow``); ``areas`` itself when ``grow`` is 0.
+    ``table``: the table of those very cells when the caller has it (a plan made on this
+    step's map), reused with ``grow`` and ``tighten`` instead of summing the grid again."""
     if grow <= 0:
         return areas
+    if table is not None:
+        return replace(areas, free=replace(table, limit=float(grow), tighten=float(tighten)))
     return replace(areas, free=FreeCells.of(sensed.grid.safe_grid(), grow, tighten))
 
 
@@ -135,7 +140,9 @@ class _Planned:
 
     ``areas`` / ``boxes`` are the safe areas (and their cell boxes) it was planned on,
     ``route`` (P, 2) [m] the route to the goal (None: none even through unknown space),
-    ``local_goal`` (2,) [m], ``reason`` the replan reason and ``ms`` [ms] the computing time.
+    ``local_goal`` (2,) [m], ``reason`` the replan reason, ``ms`` [ms] the computing time and
+    ``free`` the :class:`~sanav_mj.mapping.grow.FreeCells` of the safe cells it read for the
+    open-space speed (None without it).
     """
 
     plan: Plan
@@ -145,6 +152,7 @@ class _Planned:
     local_goal: np.ndarray
     reason: str
     ms: float
+    free: FreeCells | None = None
 
 
 class _Worker:
@@ -550,12 +558,14 @@ class SensingSAMPC:
         if not local.ok or local.reference is None or len(local.corridor) == 0:
             return None
         return _Planned(local, areas, boxes, route, np.asarray(target, dtype=float), reason,
-                        (time.perf_counter() - t0) * 1e3)
+                        (time.perf_counter() - t0) * 1e3, free)
 
     def _adopt(self, planned: _Planned, pose: np.ndarray, since_plan: int = 0, grown: bool = False) -> None:
         """Follow ``planned`` from now on; ``since_plan`` [steps] and ``grown`` (the safe areas
-        changed since the map it was planned on) for a plan made at an earlier step."""
-        self._follow(planned.plan, pose, planned.areas, planned.boxes)
+        changed since the map it was planned on) for a plan made at an earlier step. A plan
+        made in this step (``since_plan`` 0) read this step's map: its table of safe cells is
+        reused for the chain's growth."""
+        self._follow(planned.plan, pose, planned.areas, planned.boxes, planned.free if since_plan == 0 else None)
         self.route = planned.route
         self._route_dirty = True
         self.local_goal = planned.local_goal
@@ -576,8 +586,9 @@ class SensingSAMPC:
         stop = first + int(np.argmin(safe[first:]))  # first unsafe sample after the safe stretch
         return route[stop - 1].copy()
 
-    def _follow(self, plan: Plan, pose: np.ndarray, areas: SafeAreas, boxes: np.ndarray) -> None:
-        areas = _growing(areas, self.map, self.config.grow, self.mpc_config.footprint_grow_tighten)
+    def _follow(self, plan: Plan, pose: np.ndarray, areas: SafeAreas, boxes: np.ndarray,
+                table: FreeCells | None = None) -> None:
+        areas = _growing(areas, self.map, self.config.grow, self.mpc_config.footprint_grow_tighten, table)
         u_prev = np.array([0.0, self._turn_w])
         if self.mpc is None and self._spare is None:
             self.mpc = self._mpc_class(self.robot, areas, plan, self.mpc_config, footprint=self.body.mpc_footprint)

@@ -212,6 +212,19 @@ def test_discs_lidar_plans_at_the_open_space_speed_only_where_the_sensed_map_is_
     assert v[-1] == pytest.approx(0.0, abs=1e-9)
 
 
+def test_the_chain_grows_into_the_safe_cells_of_the_step_it_planned_in():
+    """A plan made in this step hands its table of safe cells (read for the open-space speed)
+    to the chain's growth: it is the table of this step's safe grid, with the growth limit and
+    tightening of the discs mode."""
+    from sanav_mj.mapping.grow import FreeCells
+
+    ctrl = _first_plan(1.0)
+    used = ctrl.mpc.areas.free
+    fresh = FreeCells.of(ctrl.map.grid.safe_grid(), 1.0, DISCS.sa_mpc.footprint_grow_tighten)
+    assert np.array_equal(used.sat, fresh.sat) and np.array_equal(used.origin, fresh.origin)
+    assert (used.resolution, used.limit, used.tighten) == (fresh.resolution, fresh.limit, fresh.tighten)
+
+
 def _contains(outer, inner):
     return bool(np.all(outer[:2] <= inner[:2] + 1e-12) and np.all(outer[2:] >= inner[2:] - 1e-12))
 

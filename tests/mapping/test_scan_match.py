@@ -4,10 +4,12 @@ the likelihood field's per-cell mean point; the cost's minimum."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from _helpers import run_without_kernels
 from _mapping_reference import room_scan
 from sanav_mj.mapping.occupancy import grid_shape
 from sanav_mj.mapping.scan_match import LikelihoodField, ScanMatchConfig, ScanMatcher, scan_points
@@ -209,12 +211,9 @@ def test_compiled_correspondence_and_iterations_equal_the_numpy_reference(seed):
 def test_scan_match_runs_without_the_compiled_kernel():
     """With SANAV_MJ_NO_CKERNEL=1 (no compiled code) a fresh process matches a rotated room
     scan with the NumPy path alone and gets the same pose as the compiled path here."""
-    import os
-    import subprocess
-    import sys
-
+    here = Path(__file__).parent  # this module and the shared helpers, wherever pytest runs from
     code = (
-        "import math, numpy as np, sys; sys.path.insert(0, 'tests/mapping');"
+        f"import math, numpy as np, sys; sys.path[:0] = [{str(here)!r}, {str(here.parent)!r}];"
         "import test_scan_match as t; from sanav_mj.mapping import match_kernel;"
         "assert not match_kernel.kernel_available();"
         "from _mapping_reference import room_scan; from sanav_mj.mapping.scan_match import *;"
@@ -223,8 +222,7 @@ def test_scan_match_runs_without_the_compiled_kernel():
         "p, n = scan_points(r, hit, t.ANGLES, max_points=cfg.max_points);"
         "m = ScanMatcher(f, cfg).match(np.array([2.0, 1.5, 0.3]), p, n); print(repr(m.pose.tolist()), m.status)"
     )
-    env = dict(os.environ, SANAV_MJ_NO_CKERNEL="1")
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    out = run_without_kernels(code)
     box = [0.0, 0.0, 6.0, 4.0]
     cfg = ScanMatchConfig()
     f = _field(box, (2.0, 1.5, 0.3), [-0.5, -0.5, 6.5, 4.5], cfg)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _helpers import run_without_kernels
 from planning_maps import in_union
 from scipy.interpolate import BSpline
 
@@ -290,10 +291,6 @@ def test_smoothing_runs_without_the_compiled_kernel():
     """With SANAV_MJ_NO_CKERNEL=1 a fresh process has no compiled assignment and computes the
     same assignment (NumPy path) as this process for a seeded random case with points
     outside their hint rectangles."""
-    import os
-    import subprocess
-    import sys
-
     code = (
         "import numpy as np; from sanav_mj.planning import assign_kernel;"
         "from sanav_mj.planning.smoothing import corridor_assignment;"
@@ -303,8 +300,7 @@ def test_smoothing_runs_without_the_compiled_kernel():
         "pts = rng.uniform(rects[hint, :2] - 0.4, rects[hint, 2:] + 0.4);"
         "pos, ok = corridor_assignment(rects, pts, hint); print(pos.tolist(), ok.tolist())"
     )
-    env = dict(os.environ, SANAV_MJ_NO_CKERNEL="1")
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    out = run_without_kernels(code)
     rng = np.random.default_rng(3)
     lo = np.cumsum(rng.uniform(0.2, 0.8, (6, 2)), axis=0)
     rects = np.hstack([lo, lo + 0.7])
