@@ -33,3 +33,15 @@ def test_bench_sensing_one_scenario(capsys):
     assert row[0] == "single_rect" and int(row[1]) > 50
     assert float(row[-1]) == 0.0  # the lidar map's safe cells lie in the known map's free cells
     assert mod.main(["no_such_scenario"]) == 2
+
+
+def test_lidar_stall_trace_short_run(capsys, tmp_path):
+    mod = _load("lidar_stall_trace")
+    assert mod.main(["single_rect", "--time-limit", "2", "--every", "1", "--png", str(tmp_path / "m.png")]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("single_rect seed 0: ")
+    assert "t=  0.00" in out and "scan_turn" in out  # the turn on the spot before the first plan
+    assert (tmp_path / "m.png").stat().st_size > 0
+    assert mod.main(["single_rect", "--every", "0"]) == 2
+    assert mod.main(["single_rect", "--png", str(tmp_path / "no" / "m.png")]) == 2
+    assert mod.main(["no_such_scenario"]) == 2
