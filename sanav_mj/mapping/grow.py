@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sanav_mj.mapping.grow_kernel import grow_cells
 from sanav_mj.mapping.occupancy import OccupancyGrid
 
 __all__ = ["FreeCells", "grow_rect"]
@@ -115,7 +116,7 @@ class FreeCells:
         return int(k[0]), int(k[1]), int(k[2]), int(k[3])
 
 
-def grow_rect(cells: FreeCells, rect, limit: float | None = None) -> np.ndarray:
+def grow_rect(cells: FreeCells, rect, limit: float | None = None, use_kernel: bool = True) -> np.ndarray:
     """A maximal free rectangle containing the free rectangle ``rect`` (module docstring).
 
     Args:
@@ -131,6 +132,10 @@ def grow_rect(cells: FreeCells, rect, limit: float | None = None) -> np.ndarray:
     Raises:
         ValueError: ``rect`` is not whole cells of the grid, or holds an occupied cell, or
             ``limit`` is negative.
+
+    The growth loop runs compiled (:mod:`sanav_mj.mapping.grow_kernel`, the same tests in the
+    same order) unless ``use_kernel`` is False or no kernel is available; the Python loop
+    here is the reference.
     """
     limit = cells.limit if limit is None else limit
     if not (np.isfinite(limit) and limit >= 0):
@@ -141,7 +146,10 @@ def grow_rect(cells: FreeCells, rect, limit: float | None = None) -> np.ndarray:
     ny, nx = cells.shape
     steps = int(np.floor(limit / cells.resolution + 1e-9))
     lo_i, lo_j, hi_i, hi_j = max(0, i0 - steps), max(0, j0 - steps), min(ny, i1 + steps), min(nx, j1 + steps)
-    moved = True
+    grown = grow_cells(cells.sat, (i0, j0, i1, j1), (lo_i, lo_j, hi_i, hi_j)) if use_kernel else None
+    if grown is not None:
+        i0, j0, i1, j1 = grown
+    moved = grown is None
     while moved:
         moved = False
         if j0 > lo_j and not cells.occupied_in(i0, j0 - 1, i1, j0):
