@@ -55,7 +55,7 @@ void sanav_grow_box(const int64_t *s, int64_t st, int64_t *box, int64_t lo_i, in
 
 _i64, _ptr = ctypes.c_int64, ctypes.c_void_p
 _load = kernel_loader("grow", _SOURCE, "the rectangle growth kernel", NO_KERNEL_ENV, {
-    "sanav_grow_box": (None, [_ptr, _i64, _ptr, _i64, _i64, _i64, _i64]),
+    "sanav_grow_box": (None, [_ptr, _i64, ctypes.POINTER(_i64), _i64, _i64, _i64, _i64]),
 })
 
 
@@ -81,6 +81,6 @@ def grow_cells(sat: np.ndarray, box: tuple[int, int, int, int], bounds: tuple[in
     lib = _load()
     if lib is None or sat.dtype != np.int64 or sat.ndim != 2 or not sat.flags.c_contiguous:
         return None
-    b = np.array(box, dtype=np.int64)
-    lib.sanav_grow_box(address(sat), sat.shape[1], address(b), *(int(v) for v in bounds))
-    return int(b[0]), int(b[1]), int(b[2]), int(b[3])
+    b = (ctypes.c_int64 * 4)(*box)
+    lib.sanav_grow_box(address(sat), sat.shape[1], b, *bounds)
+    return b[0], b[1], b[2], b[3]
