@@ -102,8 +102,10 @@ import dataclasses, json, sys
 from sanav_mj.eval.episode import run_scenario
 from sanav_mj.eval.lidar import lidar_controller
 from sanav_mj.scene import load_scenario
+from sanav_mj.eval.prepare import footprint_spec
 sc = load_scenario(sys.argv[1])
-ctrl = lidar_controller(sc)
+spec = footprint_spec("sa-mpc", sys.argv[5])
+ctrl = lidar_controller(sc, spec)
 over = json.loads(sys.argv[3])
 if over:
     ctrl.config = dataclasses.replace(ctrl.config, **over)
@@ -117,7 +119,8 @@ if sys.argv[4] == "1":  # paced: each control step starts dt after the last, as 
             t_next[0] = time.perf_counter()
         t_next[0] += ctrl.dt
         time.sleep(max(0.0, t_next[0] - time.perf_counter()))
-out = run_scenario(sc, seed=int(sys.argv[2]), sensing="lidar", controller_obj=ctrl, on_step=hook)
+out = run_scenario(sc, seed=int(sys.argv[2]), sensing="lidar", controller_obj=ctrl, controller_spec=spec,
+                   on_step=hook)
 rec = out.sensed.records
 tr = out.episode.trace
 first = next((k for k, r in enumerate(rec) if r.replan is not None), len(rec))
@@ -159,32 +162,40 @@ _KEYS = ("pipeline", "map", "solve", "nosolve", "replan", "plan", "plans", "defe
 
 
 def loop(names: list[str], seed: int, against: str | None, repeat: int, new_config: dict | None = None,
-         old_config: dict | None = None, realtime: bool = False, components: bool = False) -> int:
+         old_config: dict | None = None, realtime: bool = False, components: bool = False,
+         footprint: str = "disc") -> int:
     """The closed-loop per-step times of this tree (and of ``against``), printed as a table;
     ``new_config`` / ``old_config``: :class:`SensingConfig` fields replaced in each version's
     controller (e.g. ``{"background_replan": False}``); ``realtime``: pace the loop at the
     control period (each step starts ``dt`` after the last, as on a robot), so a background
     plan has the idle time of a real control period; ``components``: also the per-step split
-    (map update, control-thread planning, SA-MPC step, rest) and the fallbacks per run."""
+    (map update, control-thread planning, SA-MPC step, rest) and the fallbacks per run;
+    ``footprint``: the SA-MPC's footprint mode (``"disc"`` or ``"discs"``).
+
+    With ``repeat`` > 1 each version's runs are the same steps (the run JSON is checked
+    repeatable), so it also prints the mean and p99 of each step's *minimum* ``pipeline_ms``
+    over the runs (``min/step``): on a shared machine that drops most of the time a step
+    waited for a core, which a single run cannot separate."""
     trees = {"new": (str(Path(__file__).resolve().parents[1]), new_config or {})}
     if against:
         trees = {"old": (str(Path(against).resolve()), old_config or {}), **trees}
-    print(f"load average {os.getloadavg()[0]:.2f} (start); {repeat} run(s) per version, alternating; "
+    print(f"footprint {footprint}; load average {os.getloadavg()[0]:.2f} (start); {repeat} run(s) per version, alternating; "
           f"ms as mean / p99 over all steps, scans or plans of the runs{'; paced at real time' if realtime else ''}")
     for ver, (tree, over) in trees.items():
         print(f"  {ver}: {tree} {over or ''}")
     print(f"{'scenario':10s} {'ver':3s}  {'pipeline':^15s}  {'map update':^15s}  {'solve':^15s}  {'w/o solve':^15s}  "
-          f"{'replan (ctl)':^15s}  {'plan':^15s}  plans  defer  first  prep  load")
+          f"{'replan (ctl)':^15s}  {'plan':^15s}  plans  defer  first  prep  load  {'min/step':^15s}")
     sys.stdout.flush()
     status = 0
     for name in names:
         acc: dict[str, dict[str, list]] = {v: {k: [] for k in (*_KEYS, "load")} for v in trees}
         docs: dict[str, list] = {v: [] for v in trees}
+        runs: dict[str, list] = {v: [] for v in trees}  # per run, its steps' pipeline_ms
         for _ in range(repeat):
             for ver, (tree, over) in trees.items():
                 env = {**os.environ, "PYTHONPATH": tree}
                 proc = subprocess.run([sys.executable, "-c", _WORKER, name, str(seed), json.dumps(over),
-                                       "1" if realtime else "0"], env=env,
+                                       "1" if realtime else "0", footprint], env=env,
                                       cwd=tree, capture_output=True, text=True, check=False)
                 if proc.returncode != 0:
                     print(f"bench_sensing: {ver} run of {name} failed: {proc.stderr.strip()[-500:]}", file=sys.stderr)
@@ -192,6 +203,7 @@ def loop(names: list[str], seed: int, against: str | None, repeat: int, new_conf
                 r = json.loads(proc.stdout.strip().splitlines()[-1])
                 for k in _KEYS:
                     acc[ver][k].extend(r[k])
+                runs[ver].append(r["pipeline"])
                 acc[ver]["load"].append(os.getloadavg()[0])
                 docs[ver].append(_strip_ms(r["doc"]))
         for ver in trees:
@@ -202,7 +214,8 @@ def loop(names: list[str], seed: int, against: str | None, repeat: int, new_conf
 
             print(f"{name:10s} {ver:3s}  {f(a['pipeline'])}  {f(a['map'])}  {f(a['solve'])}  {f(a['nosolve'])}  "
                   f"{f(a['replan'])}  {f(a['plan'])}  {np.mean(a['plans']):5.1f}  {np.mean(a['deferred']):5.1f}  "
-                  f"{np.mean(a['first']):5.1f}  {np.mean(a['prepare']):4.1f}  {np.mean(a['load']):4.2f}")
+                  f"{np.mean(a['first']):5.1f}  {np.mean(a['prepare']):4.1f}  {np.mean(a['load']):4.2f}  "
+                  f"{f(_step_minima(runs[ver]))}")
         if components:
             for ver in trees:
                 a = acc[ver]
@@ -220,6 +233,13 @@ def loop(names: list[str], seed: int, against: str | None, repeat: int, new_conf
               f"version; {'identical' if same else 'different'} across versions")
         status = status or (0 if repeatable else 1)
     return status
+
+
+def _step_minima(runs: list[list[float]]) -> list[float]:
+    """Each step's smallest time over runs of the same steps (runs of different lengths, which
+    a repeatable run JSON rules out: the steps all runs have)."""
+    n = min((len(r) for r in runs), default=0)
+    return list(np.min(np.array([r[:n] for r in runs]), axis=0)) if n else []
 
 
 def _overrides(items: list[str] | None) -> dict:
@@ -247,11 +267,13 @@ def main(argv=None) -> int:
                    help="with --loop: also print the per-step split (map update, replan, SA-MPC step, rest)")
     p.add_argument("--realtime", action="store_true",
                    help="with --loop: pace each run at the control period (10 Hz), as on a robot")
+    p.add_argument("--footprint", choices=("disc", "discs"), default="disc",
+                   help="with --loop: the SA-MPC's footprint mode (default disc)")
     a = p.parse_args(argv)
     names = a.scenarios or list(builtin_scenarios())
     if a.loop:
         return loop(names, a.seed, a.against, max(1, a.repeat), _overrides(a.new_config), _overrides(a.old_config),
-                    a.realtime, a.components)
+                    a.realtime, a.components, a.footprint)
     print(f"load average {os.getloadavg()[0]:.2f}; ms as mean / median / p99")
     print(f"{'scenario':12s} {'scans':>4s}  {'cast':>5s}  {'map update':^21s}  {'safe areas':^21s}  "
           f"{'route areas':^21s}  {'total':^21s}  {'rects':>5s}  delta_m")

@@ -15,10 +15,12 @@ until a round extends none. Each test is one lookup in a summed-area table of oc
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from sanav_mj.mapping.grow_kernel import grow_cells
 from sanav_mj.mapping.occupancy import OccupancyGrid
 
 __all__ = ["FreeCells", "grow_rect"]
@@ -103,19 +105,24 @@ class FreeCells:
             ValueError: the rectangle's sides are not on cell boundaries (within 1e-6 cell)
                 or it leaves the grid.
         """
-        r = np.asarray(rect, dtype=float)
-        u = np.array([(r[1] - self.origin[1]), (r[0] - self.origin[0]), (r[3] - self.origin[1]),
-                      (r[2] - self.origin[0])]) / self.resolution
-        k = np.rint(u).astype(np.int64)
+        r = np.asarray(rect, dtype=float).reshape(-1).tolist()
+        ox, oy = float(self.origin[0]), float(self.origin[1])
+        h = float(self.resolution)
+        # the cell coordinates of the sides (the same IEEE operations as on arrays), rounded
+        # half to even as np.rint
+        u = [(r[1] - oy) / h, (r[0] - ox) / h, (r[3] - oy) / h, (r[2] - ox) / h] if len(r) == 4 else []
+        ok = len(u) == 4 and all(math.isfinite(v) for v in u)
+        k = [round(v) for v in u] if ok else [0, 0, 0, 0]
         ny, nx = self.shape
-        if (np.max(np.abs(u - k)) > 1e-6 or k[0] < 0 or k[1] < 0 or k[2] > ny or k[3] > nx
-                or k[2] <= k[0] or k[3] <= k[1]):
+        if (not ok or max(abs(v - kv) for v, kv in zip(u, k)) > 1e-6 or k[0] < 0 or k[1] < 0 or k[2] > ny
+                or k[3] > nx or k[2] <= k[0] or k[3] <= k[1]):
+            r = np.asarray(rect, dtype=float)
             raise ValueError(f"rect {r.tolist()}: expected a rectangle of whole cells of the grid "
                              f"(cell {self.resolution} m, origin {self.origin.tolist()}, {ny} x {nx} cells)")
-        return int(k[0]), int(k[1]), int(k[2]), int(k[3])
+        return k[0], k[1], k[2], k[3]
 
 
-def grow_rect(cells: FreeCells, rect, limit: float | None = None) -> np.ndarray:
+def grow_rect(cells: FreeCells, rect, limit: float | None = None, use_kernel: bool = True) -> np.ndarray:
     """A maximal free rectangle containing the free rectangle ``rect`` (module docstring).
 
     Args:
@@ -131,6 +138,10 @@ def grow_rect(cells: FreeCells, rect, limit: float | None = None) -> np.ndarray:
     Raises:
         ValueError: ``rect`` is not whole cells of the grid, or holds an occupied cell, or
             ``limit`` is negative.
+
+    The growth loop runs compiled (:mod:`sanav_mj.mapping.grow_kernel`, the same tests in the
+    same order) unless ``use_kernel`` is False or no kernel is available; the Python loop
+    here is the reference.
     """
     limit = cells.limit if limit is None else limit
     if not (np.isfinite(limit) and limit >= 0):
@@ -139,9 +150,12 @@ def grow_rect(cells: FreeCells, rect, limit: float | None = None) -> np.ndarray:
     if cells.occupied_in(i0, j0, i1, j1):
         raise ValueError(f"rect {np.asarray(rect, dtype=float).tolist()}: holds occupied cells; only a free rectangle grows")
     ny, nx = cells.shape
-    steps = int(np.floor(limit / cells.resolution + 1e-9))
+    steps = math.floor(limit / cells.resolution + 1e-9)
     lo_i, lo_j, hi_i, hi_j = max(0, i0 - steps), max(0, j0 - steps), min(ny, i1 + steps), min(nx, j1 + steps)
-    moved = True
+    grown = grow_cells(cells.sat, (i0, j0, i1, j1), (lo_i, lo_j, hi_i, hi_j)) if use_kernel else None
+    if grown is not None:
+        i0, j0, i1, j1 = grown
+    moved = grown is None
     while moved:
         moved = False
         if j0 > lo_j and not cells.occupied_in(i0, j0 - 1, i1, j0):

@@ -123,3 +123,37 @@ def test_squares_free_matches_the_cells_it_touches(seed, half):
                     ok = False
         if g:  # a True is a proof: no occupied cell touches the square, inside the grid
             assert ok, (p, half)
+
+
+def test_compiled_growth_equals_the_python_loop():
+    """grow_rect's compiled loop (sanav_mj.mapping.grow_kernel) gives the box the Python loop
+    gives: random grids of several fills and cell sizes, every free cell as the seed and
+    random free seed boxes, with growth limits from 0 to beyond the grid."""
+    from sanav_mj.mapping import grow_kernel
+
+    if not grow_kernel.kernel_available():
+        pytest.skip("no C compiler: only the Python loop exists")
+    rng = np.random.default_rng(7)
+    compared = 0
+    for k in range(24):
+        ny, nx = int(rng.integers(1, 40)), int(rng.integers(1, 40))
+        h = (0.025, 0.05, 0.1)[k % 3]
+        occ = rng.random((ny, nx)) < (0.02, 0.1, 0.3, 0.6)[k % 4]
+        cells = FreeCells.of(grid(occ, h=h, origin=(-1.3, 0.7)))
+        seeds = [(i, j, i + 1, j + 1) for i, j in zip(*np.nonzero(~occ))]
+        for _ in range(30):  # larger free boxes: grown by the reference from a free cell
+            if not seeds:
+                break
+            i, j, _, _ = seeds[int(rng.integers(len(seeds)))]
+            r = grow_rect(cells, [-1.3 + h * j, 0.7 + h * i, -1.3 + h * (j + 1), 0.7 + h * (i + 1)],
+                          limit=h * int(rng.integers(0, 4)), use_kernel=False)
+            seeds.append(tuple(int(v) for v in np.rint([(r[1] - 0.7) / h, (r[0] + 1.3) / h,
+                                                          (r[3] - 0.7) / h, (r[2] + 1.3) / h])))
+        for i0, j0, i1, j1 in seeds:
+            rect = [-1.3 + h * j0, 0.7 + h * i0, -1.3 + h * j1, 0.7 + h * i1]
+            for limit in (0.0, h, 3.3 * h, 1.0, 50.0):
+                fast = grow_rect(cells, rect, limit)
+                ref = grow_rect(cells, rect, limit, use_kernel=False)
+                assert np.array_equal(fast, ref), (k, rect, limit, fast, ref)
+                compared += 1
+    assert compared > 5000
