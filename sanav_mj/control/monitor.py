@@ -383,18 +383,20 @@ class PoseFilter:
         else:
             r = np.zeros(2)
         self.noise_std = np.sqrt(r)
+        rm = np.diag(r[[0, 0, 1]])
+        self._steps += 1
+        if self._steps <= cfg.warmup or not np.any(r > 0):
+            # the measurement as it is (the prediction's covariance is not needed: computed
+            # only below, where it is used)
+            self.estimate, self._p = z.copy(), rm + np.diag(q0[[0, 0, 1]])
+            self.gain = np.ones(3)
+            return z
         q = q0
         th = x[2] + 0.5 * vel[1] * self.dt
         f = np.eye(3)
         f[0, 2] = -vel[0] * self.dt * math.sin(th)
         f[1, 2] = vel[0] * self.dt * math.cos(th)
         p_pred = f @ self._p @ f.T + np.diag(q[[0, 0, 1]])
-        rm = np.diag(r[[0, 0, 1]])
-        self._steps += 1
-        if self._steps <= cfg.warmup or not np.any(r > 0):
-            self.estimate, self._p = z.copy(), rm + np.diag(q0[[0, 0, 1]])
-            self.gain = np.ones(3)
-            return z
         nu = z - pred
         nu[2] = float(_wrap(nu[2]))
         s_pred = np.array([0.5 * (p_pred[0, 0] + p_pred[1, 1]), p_pred[2, 2]]) + r
