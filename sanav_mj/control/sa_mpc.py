@@ -20,6 +20,7 @@ from typing import Callable
 import numpy as np
 
 from sanav_mj.control.adaptation import PlantAdaptation
+from sanav_mj.control.assign_kernel import assign_discs
 from sanav_mj.control.config import MPCConfig
 from sanav_mj.control.disc_stages import (
     DiscCover,
@@ -203,6 +204,15 @@ def _assign_shared(chain: CorridorChain, both: np.ndarray, pts: np.ndarray, s_pr
     :func:`assign_stages` itself when no assignment fits."""
     n1, n_d = pts.shape[:2]
     n_m = len(chain)
+    fast = assign_discs(both, n_m, pts, s_prev, tol, REANCHOR_M)
+    if fast is not None:  # the same in one C call (sanav_mj.control.assign_kernel)
+        ss, plain, ok, _ = fast
+        if ok.all():
+            return ss, plain
+        for d in np.flatnonzero(~ok):  # no zero-violation assignment: the dynamic programme
+            ss[d] = assign_stages(chain, pts[:, d], first_candidates(n_m, None if s_prev is None else s_prev[d]),
+                                  tol=tol)
+        return ss, _stage_boxes_of(chain, ss)
     d2 = _outside_sq(pts.transpose(1, 0, 2).reshape(-1, 2), both).reshape(n_d, n1, 2 * n_m)
     d2[d2 < tol * tol] = 0.0
     ss = np.empty((n_d, n1), dtype=int)
@@ -224,10 +234,16 @@ def _assign_shared(chain: CorridorChain, both: np.ndarray, pts: np.ndarray, s_pr
                 s = feasible_from_bits(stay[d], adv[d], mask)
                 last = (stay[d], adv[d], mask, s)
         ss[d] = assign_stages(chain, pts[:, d], cand, tol=tol) if s is None else s
+    return ss, _stage_boxes_of(chain, ss)
+
+
+def _stage_boxes_of(chain: CorridorChain, ss: np.ndarray) -> np.ndarray:
+    """(D, N+1, 4) [m] the unrelaxed stage boxes of assignments ``ss`` (D, N+1): the stay box
+    of each stage's member, its advance box where the assignment advances."""
     plain = chain.stay[ss]
     adv = np.diff(ss, axis=1) > 0
     plain[:, 1:][adv] = chain.advance[ss[:, 1:][adv]]
-    return ss, plain
+    return plain
 
 
 def _relax_all(plain: np.ndarray, pts0: np.ndarray, tighten: tuple[float, bool] | None) -> tuple[np.ndarray, float]:
