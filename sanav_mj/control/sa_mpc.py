@@ -237,6 +237,22 @@ def _assign_shared(chain: CorridorChain, both: np.ndarray, pts: np.ndarray, s_pr
     return ss, _stage_boxes_of(chain, ss)
 
 
+def _assign_point(chain: CorridorChain, both: np.ndarray, guess: np.ndarray, s_prev: np.ndarray | None,
+                  tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """``"disc"`` mode: :func:`assign_stages` of the guessed positions ``guess[:, :2]`` (N+1, 2)
+    [m] from the candidates around ``s_prev`` (N+1,) (or None) and the stage boxes (N+1, 4)
+    [m] (:func:`stage_boxes`): the assignment (N+1,) int and its boxes. A zero-violation
+    assignment comes from the compiled kernel (:func:`assign_discs` with one point per
+    stage: the same distances, tests and bit sets as :func:`assign_stages`' fast path);
+    otherwise, or without the kernel, :func:`assign_stages` itself."""
+    fast = assign_discs(both, len(chain), guess[:, None, :2], None if s_prev is None else s_prev[None], tol,
+                        REANCHOR_M)
+    if fast is not None and fast[2][0]:
+        return fast[0][0], fast[1][0]
+    s = assign_stages(chain, guess[:, :2], first_candidates(len(chain), s_prev), tol=tol)
+    return s, stage_boxes(chain, s)
+
+
 def _stage_boxes_of(chain: CorridorChain, ss: np.ndarray) -> np.ndarray:
     """(D, N+1, 4) [m] the unrelaxed stage boxes of assignments ``ss`` (D, N+1): the stay box
     of each stage's member, its advance box where the assignment advances."""
@@ -637,9 +653,8 @@ class SAMPC(TrackingMPC):
         J_SA slots and exit targets of this step (see the class docstring); in ``"discs"``
         mode per disc centre (:meth:`DiscCover.stages`)."""
         if self.discs is None:
-            s = assign_stages(self.chain, guess[:, :2], first_candidates(len(self.chain), self._s_prev),
-                              tol=self._check_tol)
-            boxes_c, excursion = relax_boxes(stage_boxes(self.chain, s), x0[:2])
+            s, plain = _assign_point(self.chain, self._both, guess, self._s_prev, self._check_tol)
+            boxes_c, excursion = relax_boxes(plain, x0[:2])
             xr, ur = exit_targets(self.chain, self._ref_chain[self._horizon_idx], x_ref, u_ref, s, x0[:2],
                                   float(x0[2]))
             return Constraints(boxes_c[1:, :2].ravel(), boxes_c[1:, 2:].ravel(), self._sa_params(s), xr, ur,

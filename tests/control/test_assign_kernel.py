@@ -115,3 +115,27 @@ def test_without_kernels_the_numpy_path_gives_the_same_answer():
         out.append(ss.tolist())
         out.append(pl.tobytes().hex())
     assert got == hashlib.sha256(str(out).encode()).hexdigest()
+
+
+@pytest.mark.parametrize("n_m", [1, 4, 12, 62])
+def test_single_point_assignment_matches_assign_stages(n_m):
+    """``"disc"`` mode (sa_mpc._assign_point: the kernel with one point per stage, else
+    assign_stages) against assign_stages + stage_boxes, bit for bit, on both decision paths."""
+    from sanav_mj.control.sa_mpc import _assign_point
+    from sanav_mj.control.stages import assign_stages, first_candidates, stage_boxes
+
+    rng = np.random.default_rng(100 + n_m)
+    fits = 0
+    for trial in range(300):
+        chain = _chain(rng, n_m)
+        both = np.concatenate((chain.stay, chain.advance))
+        guess = np.concatenate((_centres(rng, chain, 21, 1)[:, 0], rng.normal(size=(21, 1))), axis=1)
+        s_prev = None if trial % 3 == 0 else np.sort(rng.integers(0, n_m, 21))
+        s_ref = assign_stages(chain, guess[:, :2], first_candidates(n_m, s_prev), tol=1e-6)
+        s, boxes = _assign_point(chain, both, guess, s_prev, 1e-6)
+        assert s.dtype == s_ref.dtype and np.array_equal(s, s_ref)
+        assert np.array_equal(boxes, stage_boxes(chain, s_ref))
+        fast = assign_kernel.assign_discs(both, n_m, guess[:, None, :2], None if s_prev is None else s_prev[None],
+                                          1e-6, REANCHOR_M)
+        fits += fast is not None and bool(fast[2][0])
+    assert fits > 0 and (n_m == 1 or fits < 300) or not assign_kernel.kernel_available()
