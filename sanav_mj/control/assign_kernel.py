@@ -29,7 +29,7 @@ import numpy as np
 
 from sanav_mj.native import NO_KERNEL_ENV, kernel_loader
 
-__all__ = ["assign_discs", "kernel_available"]
+__all__ = ["assign_discs", "kernel_available", "relax_discs"]
 
 _SOURCE = r"""
 #include <math.h>
@@ -118,12 +118,72 @@ int64_t sanav_assign_discs(int64_t n1, int64_t nd, int64_t L, const double *pts,
     }
     return 0;
 }
+
+/* np.maximum / np.minimum of two finite doubles (NumPy's scalar loop: the first operand
+   when it is not the smaller / larger one) */
+static double npmax(double a, double b) { return a >= b ? a : b; }
+static double npmin(double a, double b) { return a <= b ? a : b; }
+
+/* sa_mpc._relax_all: plain (nd, n1, 4) stage boxes, pts0 (nd, 2) stage-0 centres; tighten 0
+   (relax only) or 1 (shrink by delta when delta > 0, then relax; capped at plain unless
+   follow). out (nd, n1, 4); *excursion the largest distance of a stage-0 centre beyond its
+   plain stage-0 box (0 inside). Returns -1 (nothing read) when an input is not finite. */
+int64_t sanav_relax_discs(int64_t nd, int64_t n1, const double *plain, const double *pts0, int64_t tighten,
+                          double delta, int64_t follow, double *out, double *excursion)
+{
+    for (int64_t i = 0; i < nd * n1 * 4; ++i)
+        if (!isfinite(plain[i])) return -1;
+    for (int64_t i = 0; i < nd * 2; ++i)
+        if (!isfinite(pts0[i])) return -1;
+    if (tighten && !isfinite(delta)) return -1;
+    double exc = 0.0;
+    for (int64_t d = 0; d < nd; ++d) {
+        const double *p = plain + d * n1 * 4;
+        double *o = out + d * n1 * 4;
+        double px = pts0[2 * d], py = pts0[2 * d + 1];
+        double bx = npmax(p[0] - px, 0.0), by = npmax(p[1] - py, 0.0);
+        double ax = npmax(px - p[2], 0.0), ay = npmax(py - p[3], 0.0);
+        double e = hypot(bx + ax, by + ay);
+        if (e > exc) exc = e;
+        if (tighten && delta > 0.0) {
+            for (int64_t k = 0; k < n1; ++k)
+                for (int64_t a = 0; a < 2; ++a) {
+                    double lo = p[4 * k + a], hi = p[4 * k + 2 + a];
+                    double m = npmin(delta, 0.25 * npmax(hi - lo, 0.0));
+                    o[4 * k + a] = lo + m;
+                    o[4 * k + 2 + a] = hi - m;
+                }
+        } else {
+            for (int64_t i = 0; i < n1 * 4; ++i) o[i] = p[i];
+        }
+        if (tighten) {
+            bx = npmax(o[0] - px, 0.0); by = npmax(o[1] - py, 0.0);
+            ax = npmax(px - o[2], 0.0); ay = npmax(py - o[3], 0.0);
+        }
+        if (bx != 0.0 || by != 0.0 || ax != 0.0 || ay != 0.0) {
+            for (int64_t k = 1; k < n1; ++k) {
+                o[4 * k] -= bx; o[4 * k + 1] -= by; o[4 * k + 2] += ax; o[4 * k + 3] += ay;
+            }
+        }
+        if (tighten && !follow) {
+            for (int64_t k = 1; k < n1; ++k) {
+                o[4 * k] = npmax(o[4 * k], p[4 * k]);
+                o[4 * k + 1] = npmax(o[4 * k + 1], p[4 * k + 1]);
+                o[4 * k + 2] = npmin(o[4 * k + 2], p[4 * k + 2]);
+                o[4 * k + 3] = npmin(o[4 * k + 3], p[4 * k + 3]);
+            }
+        }
+    }
+    *excursion = exc;
+    return 0;
+}
 """
 
 _i64, _ptr = ctypes.c_int64, ctypes.c_void_p
 _load = kernel_loader("assign", _SOURCE, "the disc assignment kernel", NO_KERNEL_ENV, {
     "sanav_assign_discs": (_i64, [_i64, _i64, _i64, _ptr, _ptr, _ptr, ctypes.c_double, ctypes.c_double,
                                   _ptr, _ptr, _ptr, _ptr, _ptr]),
+    "sanav_relax_discs": (_i64, [_i64, _i64, _ptr, _ptr, _i64, ctypes.c_double, _i64, _ptr, _ptr]),
 })
 
 
@@ -176,3 +236,30 @@ def assign_discs(both: np.ndarray, n_members: int, pts: np.ndarray, s_prev: np.n
     if rc != 0:
         return None
     return ss, plain, ok.view(bool), np.stack((lo, hi), axis=1)
+
+
+def relax_discs(plain: np.ndarray, pts0: np.ndarray, tighten: tuple[float, bool] | None):
+    """:func:`sanav_mj.control.sa_mpc._relax_all` in one C call: the stage boxes (D, N+1, 4)
+    [m] of ``plain`` (D, N+1, 4) [m] relaxed around the stage-0 centres ``pts0`` (D, 2) [m]
+    (shrunk by ``delta`` first and capped at ``plain`` unless ``follow``, for ``tighten =
+    (delta, follow)``) and the largest stage-0 excursion [m]; None when the kernel is not
+    available or an input is not finite (the NumPy path then runs).
+
+    The same IEEE operations in the same order as the NumPy path (``np.maximum`` /
+    ``np.minimum`` as NumPy's scalar loop takes them, ``hypot`` from the C library as
+    ``np.hypot``); NumPy's vectorised max/min may return the other zero where both operands
+    are zeros of opposite sign, so a box side at exactly 0 m could differ in the sign of
+    its zero, which no comparison, sum with a non-zero or product with it tells apart.
+    """
+    lib = _load()
+    if lib is None:
+        return None
+    p = np.ascontiguousarray(plain, dtype=np.float64)
+    c = np.ascontiguousarray(pts0, dtype=np.float64)
+    nd, n1 = p.shape[:2]
+    out = np.empty((nd, n1, 4))
+    exc = np.empty(1)
+    delta, follow = (0.0, False) if tighten is None else tighten
+    rc = lib.sanav_relax_discs(nd, n1, p.ctypes.data, c.ctypes.data, int(tighten is not None), float(delta),
+                               int(bool(follow)), _address(out), _address(exc))
+    return None if rc != 0 else (out, float(exc[0]))

@@ -20,7 +20,7 @@ from typing import Callable
 import numpy as np
 
 from sanav_mj.control.adaptation import PlantAdaptation
-from sanav_mj.control.assign_kernel import assign_discs
+from sanav_mj.control.assign_kernel import assign_discs, relax_discs
 from sanav_mj.control.config import MPCConfig
 from sanav_mj.control.disc_stages import (
     DiscCover,
@@ -267,7 +267,11 @@ def _relax_all(plain: np.ndarray, pts0: np.ndarray, tighten: tuple[float, bool] 
     boxes (D, N+1, 4) [m] from ``plain`` (D, N+1, 4) [m] relaxed around each disc's stage-0
     centre ``pts0`` (D, 2) [m] (:func:`relax_boxes`), or with ``tighten`` ``(delta, follow)``
     tightened with a capped relaxation (:func:`~sanav_mj.control.stages.tighten_relax`), and
-    the largest excursion [m] of a stage-0 centre."""
+    the largest excursion [m] of a stage-0 centre. In one C call when the kernel is
+    available (:func:`~sanav_mj.control.assign_kernel.relax_discs`)."""
+    fast = relax_discs(plain, pts0, tighten)
+    if fast is not None:
+        return fast
     exc0 = plain[:, 0]
     below = np.maximum(exc0[:, :2] - pts0, 0.0)
     above = np.maximum(pts0 - exc0[:, 2:], 0.0)

@@ -139,3 +139,36 @@ def test_single_point_assignment_matches_assign_stages(n_m):
                                           1e-6, REANCHOR_M)
         fits += fast is not None and bool(fast[2][0])
     assert fits > 0 and (n_m == 1 or fits < 300) or not assign_kernel.kernel_available()
+
+
+@pytest.mark.skipif(not assign_kernel.kernel_available(), reason="no C compiler (the NumPy path runs)")
+@pytest.mark.parametrize("tighten", [None, (0.0, False), (0.0, True), (0.012, False), (0.03, True), (0.5, False)])
+def test_relaxation_kernel_matches_the_numpy_path_bit_for_bit(monkeypatch, tighten):
+    """sa_mpc._relax_all with the kernel against its NumPy path: the same floats, bit for bit
+    except the sign of an exact zero (NumPy's vectorised max/min return either zero where
+    both operands are zeros; the sides here are rounded to 0.1 m, so many are -0.0 or 0.0),
+    and the same excursion; centres on, inside and beyond the stage-0 box."""
+    from sanav_mj.control.sa_mpc import _relax_all
+
+    rng = np.random.default_rng(5)
+    moved = 0
+    for _ in range(400):
+        n_d, n1 = int(rng.choice([1, 3])), 21
+        lo = np.round(rng.uniform(-1, 1, (n_d, n1, 2)), 1)  # zeros among the sides
+        plain = np.concatenate((lo, lo + np.round(rng.uniform(0, 0.6, (n_d, n1, 2)), 2)), axis=2)
+        box0 = plain[:, 0]
+        pts0 = rng.uniform(box0[:, :2] - 0.1, box0[:, 2:] + 0.1)
+        on_edge = rng.random(n_d) < 0.3
+        pts0[on_edge] = box0[on_edge, 2:]
+        with monkeypatch.context() as m:
+            m.setattr(sa_mpc, "relax_discs", lambda *a: None)
+            ref, exc_ref = _relax_all(plain, pts0, tighten)
+        out, exc = _relax_all(plain, pts0, tighten)
+        assert exc == exc_ref and type(exc) is float and np.array_equal(out, ref)
+        differ = out.view(np.int64) != ref.view(np.int64)  # only zeros of opposite sign
+        assert np.all(out[differ] == 0.0) and np.all(ref[differ] == 0.0)
+        nonzero = ref != 0.0
+        assert out[nonzero].tobytes() == ref[nonzero].tobytes()
+        moved += exc > 0
+    assert 50 < moved < 350
+    assert assign_kernel.relax_discs(np.full((3, 21, 4), np.nan), np.zeros((3, 2)), None) is None
