@@ -157,6 +157,7 @@ class ActuationMonitor:
     def reset(self) -> None:
         """Forget everything (start of an episode, robot at rest)."""
         m = self.config.max_delay + 1
+        self._scale = np.array([1.0, self.half_track**2])  # cost weights of (v, w): (1, half track^2)
         self._hist = np.zeros((m + 1, 2))  # _hist[j] = command sent j + 1 steps ago
         self._svv = np.zeros(2)  # forgotten sum of measured^2 per axis
         self._svc = np.zeros((m, 2))  # per delay: sum measured * command
@@ -204,7 +205,7 @@ class ActuationMonitor:
         self._svc = lam * self._svc + cand * vm
         self._scc = lam * self._scc + cand * cand
         self._weight = lam * self._weight + 1.0
-        scale = np.array([1.0, self.half_track**2])
+        scale = self._scale
         with np.errstate(divide="ignore", invalid="ignore"):
             g = np.where(self._scc > 1e-9, self._svc / np.maximum(self._scc, 1e-12), 1.0)
             res = np.maximum(self._svv - np.where(self._scc > 1e-9, self._svc * g, 0.0), 0.0)  # (m, 2)
@@ -226,7 +227,9 @@ class ActuationMonitor:
     def record(self, command: np.ndarray) -> None:
         """Remember the command (2,) [m/s, rad/s] sent at this step (what the plant receives)."""
         self._hist[1:] = self._hist[:-1].copy()
-        self._hist[0] = np.nan_to_num(np.asarray(command, dtype=float).reshape(2))
+        c = np.asarray(command, dtype=float).reshape(2)
+        # np.nan_to_num changes only non-finite values (5 us a call; finite commands are the rule)
+        self._hist[0] = c if math.isfinite(c[0]) and math.isfinite(c[1]) else np.nan_to_num(c)
         self._steps += 1
 
     def pending(self) -> np.ndarray:
@@ -383,18 +386,20 @@ class PoseFilter:
         else:
             r = np.zeros(2)
         self.noise_std = np.sqrt(r)
+        rm = np.diag(r[[0, 0, 1]])
+        self._steps += 1
+        if self._steps <= cfg.warmup or not np.any(r > 0):
+            # the measurement as it is (the prediction's covariance is not needed: computed
+            # only below, where it is used)
+            self.estimate, self._p = z.copy(), rm + np.diag(q0[[0, 0, 1]])
+            self.gain = np.ones(3)
+            return z
         q = q0
         th = x[2] + 0.5 * vel[1] * self.dt
         f = np.eye(3)
         f[0, 2] = -vel[0] * self.dt * math.sin(th)
         f[1, 2] = vel[0] * self.dt * math.cos(th)
         p_pred = f @ self._p @ f.T + np.diag(q[[0, 0, 1]])
-        rm = np.diag(r[[0, 0, 1]])
-        self._steps += 1
-        if self._steps <= cfg.warmup or not np.any(r > 0):
-            self.estimate, self._p = z.copy(), rm + np.diag(q0[[0, 0, 1]])
-            self.gain = np.ones(3)
-            return z
         nu = z - pred
         nu[2] = float(_wrap(nu[2]))
         s_pred = np.array([0.5 * (p_pred[0, 0] + p_pred[1, 1]), p_pred[2, 2]]) + r

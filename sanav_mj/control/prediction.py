@@ -196,6 +196,7 @@ class PredictionMonitor:
         self._expected: np.ndarray | None = None
         self._errors: deque[float] = deque(maxlen=self.config.window)
         self._offsets: deque[np.ndarray] = deque(maxlen=self.config.bias_window)
+        self._nonzero: deque[bool] = deque(maxlen=self.config.bias_window)  # per entry of _offsets
 
     def expect(self, state: np.ndarray | None) -> None:
         """The state (3,) [m, m, rad] the applied plan predicts for the next step's effective
@@ -218,11 +219,19 @@ class PredictionMonitor:
     def observe_estimate(self, measured: np.ndarray, estimate: np.ndarray) -> None:
         """Fold in this step's measured pose (3,) and the pose filter's estimate (3,) [m, m,
         rad]: their disc centres' offsets (D, 2) [m] ``measured - estimate`` enter :attr:`bias`."""
-        a, b = disc_centres(np.vstack((np.asarray(measured, dtype=float).reshape(1, 3),
-                                       np.asarray(estimate, dtype=float).reshape(1, 3))), self.offsets)
+        m = np.asarray(measured, dtype=float).reshape(1, 3)
+        e = np.asarray(estimate, dtype=float).reshape(1, 3)
+        if m.tobytes() == e.tobytes() and np.all(np.isfinite(m)):
+            # the filter passed the measurement through: the same centres, offsets exactly 0
+            # (what a - b gives for equal finite a and b)
+            self._offsets.append(np.zeros((len(self.offsets), 2)))
+            self._nonzero.append(False)
+            return
+        a, b = disc_centres(np.vstack((m, e)), self.offsets)
         d = a - b
         if np.all(np.isfinite(d)):
             self._offsets.append(d)
+            self._nonzero.append(bool(np.any(d != 0.0)))
 
     @property
     def bias(self) -> float:
@@ -233,8 +242,8 @@ class PredictionMonitor:
         noise of std ``sigma`` per axis averages to about ``1.25 sigma / sqrt(bias_window)``;
         an estimate that drifts from the truth (slip the measured body velocity does not
         show) by ``b`` adds about ``b``."""
-        if not self._offsets:
-            return 0.0
+        if not self._offsets or not any(self._nonzero):
+            return 0.0  # (the mean of zero offsets: exactly 0)
         m = np.mean(np.asarray(self._offsets), axis=0)
         return float(np.max(np.hypot(*m.T)))
 

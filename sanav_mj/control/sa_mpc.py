@@ -20,6 +20,7 @@ from typing import Callable
 import numpy as np
 
 from sanav_mj.control.adaptation import PlantAdaptation
+from sanav_mj.control.assign_kernel import assign_discs, relax_discs
 from sanav_mj.control.config import MPCConfig
 from sanav_mj.control.disc_stages import (
     DiscCover,
@@ -203,6 +204,15 @@ def _assign_shared(chain: CorridorChain, both: np.ndarray, pts: np.ndarray, s_pr
     :func:`assign_stages` itself when no assignment fits."""
     n1, n_d = pts.shape[:2]
     n_m = len(chain)
+    fast = assign_discs(both, n_m, pts, s_prev, tol, REANCHOR_M)
+    if fast is not None:  # the same in one C call (sanav_mj.control.assign_kernel)
+        ss, plain, ok, _ = fast
+        if ok.all():
+            return ss, plain
+        for d in np.flatnonzero(~ok):  # no zero-violation assignment: the dynamic programme
+            ss[d] = assign_stages(chain, pts[:, d], first_candidates(n_m, None if s_prev is None else s_prev[d]),
+                                  tol=tol)
+        return ss, _stage_boxes_of(chain, ss)
     d2 = _outside_sq(pts.transpose(1, 0, 2).reshape(-1, 2), both).reshape(n_d, n1, 2 * n_m)
     d2[d2 < tol * tol] = 0.0
     ss = np.empty((n_d, n1), dtype=int)
@@ -224,10 +234,32 @@ def _assign_shared(chain: CorridorChain, both: np.ndarray, pts: np.ndarray, s_pr
                 s = feasible_from_bits(stay[d], adv[d], mask)
                 last = (stay[d], adv[d], mask, s)
         ss[d] = assign_stages(chain, pts[:, d], cand, tol=tol) if s is None else s
+    return ss, _stage_boxes_of(chain, ss)
+
+
+def _assign_point(chain: CorridorChain, both: np.ndarray, guess: np.ndarray, s_prev: np.ndarray | None,
+                  tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """``"disc"`` mode: :func:`assign_stages` of the guessed positions ``guess[:, :2]`` (N+1, 2)
+    [m] from the candidates around ``s_prev`` (N+1,) (or None) and the stage boxes (N+1, 4)
+    [m] (:func:`stage_boxes`): the assignment (N+1,) int and its boxes. A zero-violation
+    assignment comes from the compiled kernel (:func:`assign_discs` with one point per
+    stage: the same distances, tests and bit sets as :func:`assign_stages`' fast path);
+    otherwise, or without the kernel, :func:`assign_stages` itself."""
+    fast = assign_discs(both, len(chain), guess[:, None, :2], None if s_prev is None else s_prev[None], tol,
+                        REANCHOR_M)
+    if fast is not None and fast[2][0]:
+        return fast[0][0], fast[1][0]
+    s = assign_stages(chain, guess[:, :2], first_candidates(len(chain), s_prev), tol=tol)
+    return s, stage_boxes(chain, s)
+
+
+def _stage_boxes_of(chain: CorridorChain, ss: np.ndarray) -> np.ndarray:
+    """(D, N+1, 4) [m] the unrelaxed stage boxes of assignments ``ss`` (D, N+1): the stay box
+    of each stage's member, its advance box where the assignment advances."""
     plain = chain.stay[ss]
     adv = np.diff(ss, axis=1) > 0
     plain[:, 1:][adv] = chain.advance[ss[:, 1:][adv]]
-    return ss, plain
+    return plain
 
 
 def _relax_all(plain: np.ndarray, pts0: np.ndarray, tighten: tuple[float, bool] | None) -> tuple[np.ndarray, float]:
@@ -235,7 +267,11 @@ def _relax_all(plain: np.ndarray, pts0: np.ndarray, tighten: tuple[float, bool] 
     boxes (D, N+1, 4) [m] from ``plain`` (D, N+1, 4) [m] relaxed around each disc's stage-0
     centre ``pts0`` (D, 2) [m] (:func:`relax_boxes`), or with ``tighten`` ``(delta, follow)``
     tightened with a capped relaxation (:func:`~sanav_mj.control.stages.tighten_relax`), and
-    the largest excursion [m] of a stage-0 centre."""
+    the largest excursion [m] of a stage-0 centre. In one C call when the kernel is
+    available (:func:`~sanav_mj.control.assign_kernel.relax_discs`)."""
+    fast = relax_discs(plain, pts0, tighten)
+    if fast is not None:
+        return fast
     exc0 = plain[:, 0]
     below = np.maximum(exc0[:, :2] - pts0, 0.0)
     above = np.maximum(pts0 - exc0[:, 2:], 0.0)
@@ -621,9 +657,8 @@ class SAMPC(TrackingMPC):
         J_SA slots and exit targets of this step (see the class docstring); in ``"discs"``
         mode per disc centre (:meth:`DiscCover.stages`)."""
         if self.discs is None:
-            s = assign_stages(self.chain, guess[:, :2], first_candidates(len(self.chain), self._s_prev),
-                              tol=self._check_tol)
-            boxes_c, excursion = relax_boxes(stage_boxes(self.chain, s), x0[:2])
+            s, plain = _assign_point(self.chain, self._both, guess, self._s_prev, self._check_tol)
+            boxes_c, excursion = relax_boxes(plain, x0[:2])
             xr, ur = exit_targets(self.chain, self._ref_chain[self._horizon_idx], x_ref, u_ref, s, x0[:2],
                                   float(x0[2]))
             return Constraints(boxes_c[1:, :2].ravel(), boxes_c[1:, 2:].ravel(), self._sa_params(s), xr, ur,

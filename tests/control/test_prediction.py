@@ -250,6 +250,32 @@ def test_bias_is_the_norm_of_the_mean_offset_of_the_measurement_from_the_estimat
     assert mon.bias == 0.0
 
 
+def test_bias_with_the_pass_through_shortcut_equals_the_disc_centre_offsets_bit_for_bit():
+    """observe_estimate skips the disc centres when the estimate is the measurement (offsets
+    exactly 0) and bias skips the mean of an all-zero window: the same floats as the offsets
+    computed from the centres every time (the reference below), over mixed windows."""
+    from collections import deque
+
+    from sanav_mj.control.footprint import disc_centres
+
+    rng = np.random.default_rng(3)
+    cfg = PredictionDerating(bias_window=4)
+    mon, ref = PredictionMonitor(OFFSETS, cfg), deque(maxlen=4)
+    for k in range(300):
+        meas = rng.normal(size=3) * [5.0, 5.0, 3.0]
+        kind = rng.integers(0, 4)
+        est = meas.copy() if kind < 2 else (meas + rng.normal(size=3) * 1e-3 if kind == 2 else meas * np.nan)
+        if k % 50 == 49:
+            est = meas.copy()
+            meas[0] = np.nan  # equal bytes would not do: a non-finite pose is never an offset
+        mon.observe_estimate(meas, est)
+        a, b = disc_centres(np.vstack((meas[None], est[None])), OFFSETS)
+        if np.all(np.isfinite(a - b)):
+            ref.append(a - b)
+        want = 0.0 if not ref else float(np.max(np.hypot(*np.mean(np.asarray(ref), axis=0).T)))
+        assert mon.bias == want and math.copysign(1.0, mon.bias) == math.copysign(1.0, want)
+
+
 def test_the_plant_adaptation_feeds_the_pose_filters_offset_to_the_monitor():
     cfg = MPCConfig(footprint="discs", footprint_prediction=PredictionDerating(bias_window=2, tighten_extra=0.0))
     ctl = _controller(cfg)
