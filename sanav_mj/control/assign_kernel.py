@@ -180,7 +180,7 @@ int64_t sanav_relax_discs(int64_t nd, int64_t n1, const double *plain, const dou
 """
 
 _i64, _ptr = ctypes.c_int64, ctypes.c_void_p
-_load = kernel_loader("assign", _SOURCE, "the disc assignment kernel", NO_KERNEL_ENV, {
+_load = kernel_loader("disc_assign", _SOURCE, "the disc assignment kernel", NO_KERNEL_ENV, {
     "sanav_assign_discs": (_i64, [_i64, _i64, _i64, _ptr, _ptr, _ptr, ctypes.c_double, ctypes.c_double,
                                   _ptr, _ptr, _ptr, _ptr, _ptr]),
     "sanav_relax_discs": (_i64, [_i64, _i64, _ptr, _ptr, _i64, ctypes.c_double, _i64, _ptr, _ptr]),
