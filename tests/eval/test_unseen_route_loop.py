@@ -15,7 +15,7 @@ from sanav_mj.scene import load_scenario
 def test_unseen_route_weighs_the_route_and_keeps_the_corridor_observed_safe(monkeypatch):
     sc = load_scenario("u_shape")
     ctrl = lidar_controller(sc)
-    assert ctrl.config.unseen_route == 0.0
+    assert ctrl.config.unseen_route == 0.0  # opt-in
     ctrl.config = replace(ctrl.config, unseen_route=0.6)
     grown = []
     real = sensing.penalise_unseen
