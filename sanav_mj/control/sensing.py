@@ -76,6 +76,7 @@ from sanav_mj.mapping.sensed_map import SensedMap, SensedUpdate
 from sanav_mj.planning import PlannerConfig
 from sanav_mj.planning import plan as make_plan
 from sanav_mj.planning.pipeline import route_points
+from sanav_mj.planning.unseen import penalise_unseen
 from sanav_mj.planning.reference import Plan
 from sanav_mj.scene import RobotParams
 
@@ -531,8 +532,11 @@ class SensingSAMPC:
             # obstacle does not make the route look blocked at every step
             route = route_points(self.body.planning_areas(route_areas), pose, self.goal, self.planner)
         elif route_areas is not None:
-            route_plan = make_plan(self.body.planning_areas(route_areas), pose, self.goal, self.robot,
-                                   self.planner)
+            r_areas = self.body.planning_areas(route_areas)
+            if self.config.unseen_route > 0:
+                g = self.map.grid
+                r_areas = penalise_unseen(r_areas, g.safe(), g.origin, g.resolution, self.config.unseen_route)
+            route_plan = make_plan(r_areas, pose, self.goal, self.robot, self.planner)
             if route_plan.ok and route_plan.reference is not None:
                 route = route_plan.reference.states[:, :2]  # the reference samples, as above
         target = self._local_goal(route)
