@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sanav_mj.control.footprint import disc_centres
+from sanav_mj.control.repair_kernel import first_acceptable
 from sanav_mj.control.stages import (
     CorridorChain,
     assign_stages,
@@ -282,6 +283,106 @@ REPAIR_YAW_SPAN = 0.5 * np.pi
 REPAIR_YAW_STEP = np.deg2rad(2.0)
 
 
+#: the repair lattice's sorted candidates per sweep radius (:func:`repair_lattice`).
+_LATTICE: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
+#: bad samples whose candidates :func:`footprint_reference` tests in one batch (memory bound).
+_REPAIR_BATCH = 16
+
+
+def repair_lattice(sweep: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The candidate offsets of :func:`footprint_reference` in cost order (cached per ``sweep``).
+
+    Args:
+        sweep: [m] the cover's turning radius (weight of the yaw offset in the cost).
+
+    Returns:
+        ``(order, dx, dy, da)``: ``order`` (L,) int, the index of each candidate in the
+        lattice's ``(x, y, yaw)``-major ravel order (``L = (2n+1)^2 (2m+1)``: 11 x 11 x 89),
+        sorted by ``|d|^2 + (sweep da)^2`` (stable); ``dx, dy`` (L,) [m] and ``da`` (L,) [rad]
+        the offsets in that order. Read-only arrays.
+    """
+    key = float(sweep)
+    hit = _LATTICE.get(key)
+    if hit is None:
+        n, m = _lattice_sizes()
+        r = REPAIR_STEP_M * np.arange(-n, n + 1)  # integer multiples: the zero offset is exact
+        a = REPAIR_YAW_STEP * np.arange(-m, m + 1)
+        dx, dy, da = (g.ravel() for g in np.meshgrid(r, r, a, indexing="ij"))
+        cost = dx * dx + dy * dy + (key * da) ** 2
+        order = np.argsort(cost, kind="stable")
+        hit = (order, dx[order], dy[order], da[order])
+        for v in hit:
+            v.setflags(write=False)
+        _LATTICE[key] = hit
+    return hit
+
+
+def _lattice_sizes() -> tuple[int, int]:
+    """Half-widths ``(n, m)`` of the repair lattice: positions ``-n..n`` steps, yaws ``-m..m``."""
+    return int(round(REPAIR_REACH_M / REPAIR_STEP_M)), int(REPAIR_YAW_SPAN // REPAIR_YAW_STEP)
+
+
+def _lattice_axes(states: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The repair lattice's axes for each state (B, 3): candidate x and y (B, n) [m] (state
+    plus offset) and the cosine and sine (B, a) of the candidate yaws, as the candidates'
+    ``clearance`` computes them (the same additions; NumPy's cos and sin)."""
+    n, m = _lattice_sizes()
+    r = REPAIR_STEP_M * np.arange(-n, n + 1)
+    a = REPAIR_YAW_STEP * np.arange(-m, m + 1)
+    yaw = states[:, 2, None] + a
+    return states[:, 0, None] + r, states[:, 1, None] + r, np.cos(yaw), np.sin(yaw)
+
+
+def _acceptable(cover: DiscCover, chain, states: np.ndarray) -> np.ndarray:
+    """(B, L) bool: whether each lattice candidate (ravel order of :func:`repair_lattice`) of
+    each state (B, 3) has every disc centre in a member of its chain, i.e.
+    ``cover.clearance(chain, candidates) >= 0``, decided with the same floating-point
+    operations on the same values (the NumPy path and reference of
+    :func:`sanav_mj.control.repair_kernel.first_acceptable`).
+
+    The candidate poses ``(x + dx, y + dy, yaw + da)`` share their 11 positions per axis and
+    89 yaws: the disc centres ``(x + dx + ox cos - oy sin, y + dy + ox sin + oy cos)`` are
+    computed once per (position, yaw) pair and axis, the member tests per axis (a slack
+    ``>= 0`` on both sides), and a disc centre is in a member exactly when both axes pass.
+    The x-axis passes of each member are packed into bits over the x offsets, OR-ed over the
+    members whose y test passes, and AND-ed over the discs.
+    """
+    xs, ys, cos, sin = _lattice_axes(states)
+    nx, na = xs.shape[1], cos.shape[1]
+    c, s = cos[:, None, :], sin[:, None, :]
+    bit = np.left_shift(np.int64(1), np.arange(nx, dtype=np.int64))[:, None]  # (nx, 1)
+    acc = np.full((len(states), nx, na), (1 << nx) - 1, dtype=np.int64)  # [b, iy, k]: bits over ix
+    for (ox, oy), ch in zip(cover.offsets, cover.per_disc(chain)):
+        # the same operations as disc_centres: x + ox cos - oy sin, y + ox sin + oy cos
+        px = xs[:, :, None] + ox * c - oy * s  # (B, nx, na)
+        py = ys[:, :, None] + ox * s + oy * c
+        b = np.asarray(ch.boxes, dtype=float)[None, :, None, None, :]  # (1, M, 1, 1, 4)
+        pxm, pym = px[:, None], py[:, None]  # (B, 1, n, na)
+        okx = (pxm - b[..., 0] >= 0.0) & (b[..., 2] - pxm >= 0.0)  # (B, M, nx, na)
+        oky = (pym - b[..., 1] >= 0.0) & (b[..., 3] - pym >= 0.0)
+        maskx = (okx * bit).sum(axis=2)  # (B, M, na): bit ix set where the x test passes
+        acc &= np.bitwise_or.reduce(np.where(oky, maskx[:, :, None, :], 0), axis=1)  # (B, ny, na)
+    ok = (acc[:, None, :, :] >> np.arange(nx, dtype=np.int64)[None, :, None, None]) & 1  # (B, ix, iy, k)
+    return ok.reshape(len(states), -1).astype(bool)
+
+
+def _first_acceptable(cover: DiscCover, chain, states: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """(B,) int: per state (B, 3), the position in ``order`` (:func:`repair_lattice`) of its
+    first acceptable candidate (:func:`_acceptable`), -1 when there is none; compiled
+    (:func:`~sanav_mj.control.repair_kernel.first_acceptable`) or, without the kernel, NumPy."""
+    xs, ys, cos, sin = _lattice_axes(states)
+    boxes = [ch.boxes for ch in cover.per_disc(chain)]
+    first = first_acceptable(xs, ys, cos, sin, cover.offsets, boxes, order)
+    if first is not None:
+        return first
+    out = []
+    for lo in range(0, len(states), _REPAIR_BATCH):
+        ok = _acceptable(cover, chain, states[lo: lo + _REPAIR_BATCH])[:, order]  # (B, L) in cost order
+        j = ok.argmax(axis=1)
+        out.append(np.where(ok[np.arange(j.size), j], j, -1))
+    return np.concatenate(out)
+
+
 def footprint_reference(cover: DiscCover, chain: CorridorChain, states: np.ndarray, inputs: np.ndarray,
                         dt: float) -> tuple[np.ndarray, np.ndarray]:
     """The reference with every pose that puts a disc centre outside the corridor chain moved
@@ -294,12 +395,16 @@ def footprint_reference(cover: DiscCover, chain: CorridorChain, states: np.ndarr
     (position within :data:`REPAIR_REACH_M` per axis in steps of :data:`REPAIR_STEP_M`, yaw
     within :data:`REPAIR_YAW_SPAN` in steps of :data:`REPAIR_YAW_STEP`) whose disc centres
     all lie in the members (:meth:`DiscCover.clearance` >= 0) nearest in disc-centre
-    distance ``|dp|^2 + (sweep dyaw)^2``; a sample with no such pose is kept. The yaw rate of
-    the inputs around a moved sample is the yaw change over ``dt`` [s].
+    distance ``|dp|^2 + (sweep dyaw)^2`` (the first in the stable cost order of
+    :func:`repair_lattice`); a sample with no such pose is kept. The yaw rate of the inputs
+    around a moved sample is the yaw change over ``dt`` [s]. The candidates are tested per
+    axis (:func:`_acceptable`, compiled: :mod:`sanav_mj.control.repair_kernel`), with the same
+    decisions as evaluating ``clearance`` on all of them.
 
     Args:
         cover: the disc cover.
-        chain: the corridor chain the disc rows use.
+        chain: the corridor chain the disc rows use (or one per disc, as in
+            :meth:`DiscCover.stages`).
         states: (K, 3) [m, m, rad] reference states; inputs: (K, 2) or (K-1, 2) [m/s, rad/s].
         dt: [s] the reference's period (> 0).
 
@@ -310,19 +415,11 @@ def footprint_reference(cover: DiscCover, chain: CorridorChain, states: np.ndarr
     bad = np.flatnonzero(cover.clearance(chain, states) < 0.0)
     if bad.size == 0:
         return states, inputs
-    n, m = int(round(REPAIR_REACH_M / REPAIR_STEP_M)), int(REPAIR_YAW_SPAN // REPAIR_YAW_STEP)
-    r = REPAIR_STEP_M * np.arange(-n, n + 1)  # integer multiples: the zero offset is exact
-    a = REPAIR_YAW_STEP * np.arange(-m, m + 1)
-    dx, dy, da = (g.ravel() for g in np.meshgrid(r, r, a, indexing="ij"))
-    cost = dx * dx + dy * dy + (cover.sweep * da) ** 2
-    order = np.argsort(cost, kind="stable")
-    dx, dy, da = dx[order], dy[order], da[order]
+    order, dx, dy, da = repair_lattice(cover.sweep)
     out = states.copy()
-    for i in bad:
-        cand = np.column_stack((states[i, 0] + dx, states[i, 1] + dy, states[i, 2] + da))
-        ok = np.flatnonzero(cover.clearance(chain, cand) >= 0.0)
-        if ok.size:
-            out[i] = cand[ok[0]]
+    for i, j in zip(bad, _first_acceptable(cover, chain, states[bad], order)):
+        if j >= 0:  # the candidate pose as states[i] + (dx, dy, da)[j]
+            out[i] = (states[i, 0] + dx[j], states[i, 1] + dy[j], states[i, 2] + da[j])
     inputs = np.asarray(inputs, dtype=float).copy()
     touched = np.unique(np.concatenate((bad - 1, bad)))
     touched = touched[(touched >= 0) & (touched < min(len(inputs), len(out) - 1))]
