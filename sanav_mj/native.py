@@ -180,7 +180,7 @@ def load_c_kernel(prefix: str, source: str, what: str, disable_env: str) -> ctyp
 
 #: Environment variable: set to ``1`` to run the NumPy paths of the compiled kernels
 #: (beams, safe areas, scan match, rectangle test, rectangle growth, corridor assignment,
-#: disc-centre assignment and relaxation) even where C compiles.
+#: disc-centre assignment and relaxation, footprint-reference repair) even where C compiles.
 NO_KERNEL_ENV = "SANAV_MJ_NO_CKERNEL"
 
 #: a compiled function's ctypes signature: (restype, argtypes)
