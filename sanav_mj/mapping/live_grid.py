@@ -108,6 +108,14 @@ class LiveGridConfig:
             BARN-like worlds with the lidar in the discs mode it did not help (67 against 73
             of 100 reached, docs/results.md), the robot then stops at passages whose safe
             cells stay closed.
+        sub_cells: sub-cells per cell edge [1] of the *material evidence* of occupied cells
+            (:class:`~sanav_mj.mapping.subcell_grid.SubcellGrid`, built by
+            :class:`~sanav_mj.mapping.sensed_map.SensedMap` when 2). 1 (default): an occupied
+            cell counts against the safe grid with its whole square. 2: a second log-odds
+            grid of half the edge, updated by the same beams with the same rules, tells which
+            quarters of an occupied cell may hold material, and the safe grid measures from
+            those quarters' squares only (unknown cells still with their whole square; safe
+            cells still observed free). A plain :class:`LiveGrid` ignores it.
     """
 
     l_free: float = -0.4
@@ -120,8 +128,12 @@ class LiveGridConfig:
     route_kernel: str = "square"
     noise_cells: int = 0
     floor_at: float | None = 0.5
+    sub_cells: int = 1
 
     def __post_init__(self) -> None:
+        if isinstance(self.sub_cells, bool) or self.sub_cells not in (1, 2):
+            raise ValueError(f"LiveGridConfig.sub_cells must be 1 or 2 [sub-cells per cell edge], "
+                             f"got {self.sub_cells!r}")
         if isinstance(self.noise_cells, bool) or not isinstance(self.noise_cells, int) or self.noise_cells < 0:
             raise ValueError(f"LiveGridConfig.noise_cells must be an integer >= 0 [cells], got {self.noise_cells!r}")
         if self.route_kernel not in ("centre", "square"):

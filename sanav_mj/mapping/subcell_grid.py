@@ -1,0 +1,278 @@
+"""The live grid whose safe cells measure from the sub-cell evidence of occupied cells.
+
+:class:`~sanav_mj.mapping.live_grid.LiveGrid` knows only that material lies somewhere in a
+non-free cell; its safe grid measures the inflation radius from the whole square of every
+such cell. With range noise of about a cell the cell just in front of a surface is locked
+occupied now and then, and a passage loses up to about a cell per side against the exact
+rasterisation of the known map (docs/results.md, "Why the last 15 lidar failures stop").
+
+:class:`SubcellGrid` keeps a second log-odds grid of half the cell edge (the *sub-cells*),
+updated by the same beams with the same rules (crossings, returns, hit floor), and counts
+an occupied cell against the safe grid only with the squares of its sub-cells that are
+not free there. The rule (``LiveGridConfig.sub_cells == 2``):
+
+    a cell is safe iff it is free, and no *material square* lies within the inflation
+    radius of its closed square, the material squares being: the square of every unknown
+    cell, and the square of every sub-cell that is not free (sub-cell grid) of an occupied
+    cell (sub-cells outside the sub-cell grid count as not free).
+
+Guarantee. Assume (i) no material lies in a cell the grid calls free (the assumption of
+the plain rule), and (ii) no material lies in a sub-cell of an occupied cell that the
+sub-cell grid calls free. Every material point then lies in a material square (an unknown
+cell's, or a not-free sub-cell's of an occupied cell), so a safe cell's square is more than
+the inflation radius from every material point: parts of a surface no beam hit included,
+since the rule measures from whole (sub-)squares, never from end points. Unknown cells keep
+their whole square and a safe cell is observed free, so unknown space is never safe.
+
+What (ii) rests on, and what breaks it: a sub-cell holding material is called free when the
+log-odds walk drifts down there, i.e. when fewer than ``f* = -l_free / (l_occ - l_free)`` of
+the beams reaching it end in it. For one beam at normal incidence with Gaussian range noise
+``sigma`` the fraction is
+:func:`~sanav_mj.mapping.live_grid.beam_hit_fraction` ``(depth, sub, sigma)``, smallest
+for a sub-cell holding a sliver (``depth -> sub``): 0.319 at ``sigma`` 0.02 m on 0.0125 m
+sub-cells, above ``f*`` 0.286 (the defaults); from ``sigma`` about 0.0225 m it falls below.
+So the rule is used only when the robot file's ``lidar_noise`` keeps the sliver fraction
+above ``f*`` (:func:`subcells_hold`, checked by ``eval/lidar.py`` ``lidar_grid``). Noise
+heavier than the model (or beams grazing a surface, which reach a sub-cell without ending
+in it) can still let a sliver of material drift free; the offline check
+(scripts/lidar_map_fidelity.py, ``subcell``) measures that no safe cell lies within the
+known map's inflation of an obstacle.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from sanav_mj.mapping.live_grid import FREE, OCCUPIED, UNKNOWN, LiveGrid, LiveGridConfig, MapUpdate, \
+    beam_hit_fraction, inflation_offsets
+from sanav_mj.mapping.occupancy import grid_shape
+from sanav_mj.mapping.subcell_kernel import SpreadScratch, spread_items
+
+_FULL = 15  # all four sub-cells: the whole square
+
+
+def subcells_hold(resolution: float, sigma: float, config: LiveGridConfig = LiveGridConfig()) -> bool:
+    """Whether a sub-cell of ``resolution / 2`` [m] holding any sliver of material drifts
+    occupied under Gaussian range noise ``sigma`` [m] (:func:`beam_hit_fraction` of a sliver
+    above ``f* = -l_free / (l_occ - l_free)``), the condition assumption (ii) of the module
+    rests on. ``sigma`` 0 (no noise): True."""
+    if not (math.isfinite(resolution) and resolution > 0 and math.isfinite(sigma) and sigma >= 0):
+        raise ValueError(f"resolution must be > 0 and sigma >= 0 [m], got {resolution!r}, {sigma!r}")
+    if sigma == 0:
+        return True
+    sub = 0.5 * resolution
+    f_star = -config.l_free / (config.l_occ - config.l_free)
+    return bool(beam_hit_fraction(sub * (1 - 1e-9), sub, sigma) > f_star)
+
+
+def subcell_kernels(inflation: float, resolution: float) -> list[np.ndarray]:
+    """Per sub-cell ``k = 2 a + b`` (row half ``a``, column half ``b`` of a cell), the cell
+    offsets ``(di, dj)`` whose closed squares lie within ``inflation`` [m] of that sub-cell's
+    closed square (ties within 1e-9 m kept, the conservative side).
+
+    Returns:
+        Four (K_k, 2) int64 arrays.
+    """
+    half = 0.5 * resolution
+    r = int(math.floor(inflation / resolution + 1e-9)) + 1
+    di, dj = np.mgrid[-r:r + 1, -r:r + 1]
+    out = []
+    for a in (0, 1):
+        for b in (0, 1):
+            # in sub-cell units: the sub-cell spans [b, b + 1], the cell at dj spans [2 dj, 2 dj + 2]
+            gx = np.maximum(0, np.maximum(2 * dj - (b + 1), b - (2 * dj + 2)))
+            gy = np.maximum(0, np.maximum(2 * di - (a + 1), a - (2 * di + 2)))
+            keep = np.hypot(gx, gy) * half <= inflation + 1e-9
+            out.append(np.stack([di[keep], dj[keep]], axis=1).astype(np.int64))
+    return out
+
+
+def _items(bits: np.ndarray) -> np.ndarray:
+    """Material bits as counted items: 15 (the whole square) as item 4 (one kernel, the
+    union of the four sub-cell kernels: the same cells reach zero), else bits 0-3."""
+    b = bits.astype(np.int32)
+    return np.where(b == _FULL, 16, b)
+
+
+class SubcellGrid(LiveGrid):
+    """A :class:`LiveGrid` whose safe grid uses the sub-cell evidence of occupied cells
+    (module docstring: the rule and its guarantee).
+
+    Args: as :class:`LiveGrid`; ``config.sub_cells`` must be 2.
+
+    Attributes:
+        fine: the sub-cell grid (:class:`LiveGrid` of ``resolution / 2`` cells, inflation 0,
+            the same log-odds rules).
+        blocked: (ny, nx) int32 per cell: 1 if it is not free, plus the number of material
+            squares within the inflation radius (safe iff 0).
+    """
+
+    def __init__(self, bounds, resolution: float, inflation: float, config: LiveGridConfig = LiveGridConfig()
+                 ) -> None:
+        if config.sub_cells != 2:
+            raise ValueError(f"SubcellGrid needs LiveGridConfig.sub_cells == 2, got {config.sub_cells!r}")
+        if config.noise_cells:
+            raise ValueError(f"SubcellGrid: LiveGridConfig.noise_cells must be 0, got {config.noise_cells!r}")
+        if config.hit_floor is None or config.floor_at is None or config.floor_at < config.occ_thresh:
+            # a floor raised only with the cell turning occupied: every change of a cell's
+            # material bits comes with a state change of it or of one of its sub-cells
+            raise ValueError("SubcellGrid needs LiveGridConfig.hit_floor and floor_at set, floor_at >= occ_thresh, "
+                             f"got hit_floor={config.hit_floor!r}, floor_at={config.floor_at!r}")
+        super().__init__(bounds, resolution, inflation, config)
+        self.fine = LiveGrid(bounds, 0.5 * self.resolution, 0.0, replace(config, sub_cells=1))
+        self._fshape = grid_shape(self.bounds, 0.5 * self.resolution)
+        # the commit keeps only the self term (1 where a cell is not free); the material
+        # squares' counts are added by _spread_sub
+        self._offsets = np.zeros((1, 2), np.int64)
+        self._koff = np.zeros(1, np.int64)
+        self._rows = [(0, 0)]
+        self._rows_arr = np.zeros((1, 2), np.int64)
+        self._sub_off = subcell_kernels(self.inflation, self.resolution)
+        assert max(int(np.abs(o).max()) for o in self._sub_off) <= self._r
+        self._sub_off.append(inflation_offsets(self.inflation, self.resolution))  # item 4: the whole square
+        self._sub_koff = [o[:, 0] * self._pw + o[:, 1] for o in self._sub_off]
+        self._sub_koff_all = np.concatenate(self._sub_koff).astype(np.int64)
+        self._sub_starts = np.concatenate([[0], np.cumsum([len(o) for o in self._sub_koff])]).astype(np.int64)
+        self._sub_scratch = SpreadScratch(len(self._pad))
+        self._use_sub_kernel = True  # the compiled spreading when available (False: NumPy, for tests)
+        ny, nx = self.shape
+        self._contrib = np.zeros(ny * nx, np.int8)  # bit k: sub-cell k is a material square
+        self._pad[:] = 0
+        self.blocked[...] = (self.states() != FREE).astype(np.int32)
+        cells = np.arange(ny * nx, dtype=np.int64)
+        self._apply(cells, self._masks(cells))
+
+    def _masks(self, cells: np.ndarray) -> np.ndarray:
+        """(K,) int8 material-square bits of cells (flat): 0 free, 15 unknown, occupied: its
+        sub-cells not free in the sub-cell grid (outside it: not free)."""
+        ny, nx = self.shape
+        fy, fx = self._fshape
+        i, j = np.divmod(cells, nx)
+        lo = self.log_odds.reshape(-1)[cells]
+        c = self.config
+        state = np.where(lo <= c.free_thresh, FREE, np.where(lo >= c.occ_thresh, OCCUPIED, UNKNOWN))
+        # an unknown cell that ever reached occupied (its floor raised: a return cell that
+        # faded) keeps the sub-cell evidence; an unknown cell never occupied, its square
+        locked = self._floor[cells] == np.float32(c.hit_floor)
+        out = np.where((state == UNKNOWN) & ~locked, _FULL, 0).astype(np.int8)
+        occ = (state == OCCUPIED) | ((state == UNKNOWN) & locked)
+        if occ.any():
+            fl = self.fine.log_odds
+            oi, oj = i[occ], j[occ]
+            m = np.zeros(len(oi), np.int8)
+            for a in (0, 1):
+                for b in (0, 1):
+                    fi, fj = 2 * oi + a, 2 * oj + b
+                    inside = (fi < fy) & (fj < fx)
+                    notfree = np.ones(len(oi), bool)
+                    notfree[inside] = fl[fi[inside], fj[inside]] > c.free_thresh
+                    m |= (notfree.astype(np.int8) << (2 * a + b))
+            out[occ] = m
+        return out
+
+    def _apply(self, cells: np.ndarray, new: np.ndarray) -> np.ndarray:
+        """Set the material bits of ``cells`` to ``new`` and spread the difference into the
+        counts (compiled, :mod:`~sanav_mj.mapping.subcell_kernel`, or NumPy). Returns the
+        sorted flat cells whose count crossed zero."""
+        old = self._contrib[cells]
+        ch = old != new
+        cells, old, new = cells[ch], old[ch], new[ch]
+        self._contrib[cells] = new
+        if not len(cells):
+            return np.zeros(0, np.int64)
+        ny, nx = self.shape
+        ci, cj = np.divmod(cells, nx)
+        centre = (ci + self._r) * self._pw + (cj + self._r)
+        # items: the whole square (one kernel) for 15, else one per sub-cell bit
+        oi, ni = _items(old), _items(new)
+        k = np.arange(5)
+        delta = (((ni[:, None] >> k) & 1) - ((oi[:, None] >> k) & 1)).astype(np.int8)
+        flipped = None
+        if self._use_sub_kernel:
+            flipped = spread_items(centre, delta, self._sub_koff_all, self._sub_starts, self._pad, self._sub_scratch)
+        if flipped is None:
+            flipped = self._spread_numpy(centre, delta)
+        pr, pc = np.divmod(flipped, self._pw)
+        pr -= self._r
+        pc -= self._r
+        inside = (pr >= 0) & (pr < ny) & (pc >= 0) & (pc < nx)
+        return np.sort(pr[inside] * nx + pc[inside])
+
+    def _spread_numpy(self, centre: np.ndarray, delta: np.ndarray) -> np.ndarray:
+        """The NumPy reference of :func:`spread_items`: the padded indices whose count crossed zero."""
+        idx, dl = [], []
+        for k in range(5):
+            sel = delta[:, k] != 0
+            if sel.any():
+                ko = self._sub_koff[k]
+                idx.append((centre[sel][:, None] + ko[None, :]).ravel())
+                dl.append(np.repeat(delta[sel, k].astype(np.int32), len(ko)))
+        if not idx:
+            return np.zeros(0, np.int64)
+        idx = np.concatenate(idx)
+        dl = np.concatenate(dl)
+        pad = self._pad
+        lo, hi = int(idx.min()), int(idx.max()) + 1
+        acc = np.bincount(idx - lo, weights=dl, minlength=hi - lo).astype(np.int32)
+        touched = np.flatnonzero(acc)
+        acc = acc[touched]
+        touched += lo
+        was_zero = pad[touched] == 0
+        pad[touched] += acc
+        return touched[was_zero != (pad[touched] == 0)]
+
+    def _refresh(self, up: MapUpdate, fine_changed: np.ndarray) -> MapUpdate:
+        """The material bits of the cells whose state changed and of the parents of the
+        sub-cells whose state changed; the safe flips of the commit's self term and of the
+        material counts combined (a count that crossed zero in both did not flip)."""
+        fx = self._fshape[1]
+        fi, fj = np.divmod(fine_changed, fx)
+        parents = (fi // 2) * self.shape[1] + fj // 2
+        cells = np.unique(np.concatenate([up.state_changed, parents]))
+        flips = self._apply(cells, self._masks(cells))
+        return MapUpdate(up.state_changed, np.setxor1d(up.safe_changed, flips), up.route_changed)
+
+    def integrate(self, origin, heading: float, ranges, hit, angles) -> MapUpdate:
+        """As :meth:`LiveGrid.integrate`; the sub-cell grid takes the same scan."""
+        up = super().integrate(origin, heading, ranges, hit, angles)
+        fup = self.fine.integrate(origin, heading, ranges, hit, angles)
+        return self._refresh(up, fup.state_changed)
+
+    def observe_free(self, cells) -> MapUpdate:
+        """As :meth:`LiveGrid.observe_free`; the cells' sub-cells are observed free too."""
+        up = super().observe_free(cells)
+        c = np.unique(np.asarray(cells, dtype=np.int64).reshape(-1))
+        i, j = np.divmod(c, self.shape[1])
+        fy, fx = self._fshape
+        sub = []
+        for a in (0, 1):
+            for b in (0, 1):
+                fi, fj = 2 * i + a, 2 * j + b
+                ok = (fi < fy) & (fj < fx)
+                sub.append(fi[ok] * fx + fj[ok])
+        fup = self.fine.observe_free(np.concatenate(sub))
+        return self._refresh(up, fup.state_changed)
+
+    def material_squares(self) -> np.ndarray:
+        """(ny, nx) int8 material bits per cell (bit ``2 a + b``: sub-cell row half ``a``,
+        column half ``b``; 15 = the whole square, 0 = none)."""
+        return self._contrib.reshape(self.shape).copy()
+
+    def blocked_reference(self) -> np.ndarray:
+        """(ny, nx) int32 the counts recomputed from scratch (the self term and every
+        material square, by brute force over the kernels): equals :attr:`blocked` after any
+        sequence of updates (tested)."""
+        ny, nx = self.shape
+        cells = np.arange(ny * nx, dtype=np.int64)
+        bits = self._masks(cells).reshape(ny, nx)
+        out = (self.states() != FREE).astype(np.int32)
+        r = self._r
+        items = _items(bits)
+        for k, off in enumerate(self._sub_off):
+            m = np.pad(((items >> k) & 1).astype(np.int32), r)
+            for di, dj in off:  # a material square at C counts at C + (di, dj)
+                out += m[r - di:r - di + ny, r - dj:r - dj + nx]
+        return out
