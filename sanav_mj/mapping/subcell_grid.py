@@ -46,13 +46,16 @@ from dataclasses import replace
 
 import numpy as np
 
-from sanav_mj.mapping.live_grid import FREE, OCCUPIED, UNKNOWN, LiveGrid, LiveGridConfig, MapUpdate, \
-    beam_hit_fraction, inflation_offsets
+from sanav_mj.mapping.live_grid import FREE, LiveGrid, LiveGridConfig, MapUpdate, \
+    beam_hit_fraction, dilate_count
 from sanav_mj.mapping.occupancy import grid_shape
 from sanav_mj.mapping.subcell_kernel import SpreadScratch, spread_items
 
-_FULL = 15  # all four sub-cells: the whole square
+_CORR = 16  # the correction flag: the cell is a return cell (its floor raised)
 
+#: the correction's items per cell: 0-3 the sub-cells (+1 each where set), 4 the cell itself
+#: (+1), 5 its whole square (-1: taking back the commit's count of the non-free cell)
+_SIGN = np.array([1, 1, 1, 1, 1, -1], np.int8)
 
 def subcells_hold(resolution: float, sigma: float, config: LiveGridConfig = LiveGridConfig()) -> bool:
     """Whether a sub-cell of ``resolution / 2`` [m] holding any sliver of material drifts
@@ -90,24 +93,27 @@ def subcell_kernels(inflation: float, resolution: float) -> list[np.ndarray]:
     return out
 
 
-def _items(bits: np.ndarray) -> np.ndarray:
-    """Material bits as counted items: 15 (the whole square) as item 4 (one kernel, the
-    union of the four sub-cell kernels: the same cells reach zero), else bits 0-3."""
-    b = bits.astype(np.int32)
-    return np.where(b == _FULL, 16, b)
-
-
 class SubcellGrid(LiveGrid):
-    """A :class:`LiveGrid` whose safe grid uses the sub-cell evidence of occupied cells
+    """A :class:`LiveGrid` whose safe grid uses the sub-cell evidence of return cells
     (module docstring: the rule and its guarantee).
 
-    Args: as :class:`LiveGrid`; ``config.sub_cells`` must be 2.
+    The counts are kept in two parts: the commit of :class:`LiveGrid` counts every non-free
+    cell with its whole square (as the plain rule, compiled, by row runs when many cells
+    change: the map's frontier moves by hundreds of cells a scan); a *correction* per
+    return cell (a cell whose floor was raised: it turned occupied on a return) takes its
+    whole square back and adds the cell itself and its not-free sub-cells. A return cell
+    never turns free again (``hit_floor``), so the correction changes only where a cell
+    becomes a return cell or one of its sub-cells flips, a few cells a scan.
+
+    Args: as :class:`LiveGrid`; ``config.sub_cells`` must be 2, ``config.floor_at`` equal
+    to ``config.occ_thresh`` (a floor is raised exactly when a cell turns occupied, so every
+    change of a correction comes with a state change of the cell or of a sub-cell).
 
     Attributes:
         fine: the sub-cell grid (:class:`LiveGrid` of ``resolution / 2`` cells, inflation 0,
             the same log-odds rules).
-        blocked: (ny, nx) int32 per cell: 1 if it is not free, plus the number of material
-            squares within the inflation radius (safe iff 0).
+        blocked: (ny, nx) int32 per cell: the number of material squares within the
+            inflation radius plus 1 if the cell is not free (safe iff 0).
     """
 
     def __init__(self, bounds, resolution: float, inflation: float, config: LiveGridConfig = LiveGridConfig()
@@ -116,80 +122,70 @@ class SubcellGrid(LiveGrid):
             raise ValueError(f"SubcellGrid needs LiveGridConfig.sub_cells == 2, got {config.sub_cells!r}")
         if config.noise_cells:
             raise ValueError(f"SubcellGrid: LiveGridConfig.noise_cells must be 0, got {config.noise_cells!r}")
-        if config.hit_floor is None or config.floor_at is None or config.floor_at < config.occ_thresh:
-            # a floor raised only with the cell turning occupied: every change of a cell's
-            # material bits comes with a state change of it or of one of its sub-cells
-            raise ValueError("SubcellGrid needs LiveGridConfig.hit_floor and floor_at set, floor_at >= occ_thresh, "
-                             f"got hit_floor={config.hit_floor!r}, floor_at={config.floor_at!r}")
+        if config.hit_floor is None or config.floor_at is None or config.floor_at != config.occ_thresh:
+            raise ValueError("SubcellGrid needs LiveGridConfig.hit_floor set and floor_at == occ_thresh, got "
+                             f"hit_floor={config.hit_floor!r}, floor_at={config.floor_at!r}, "
+                             f"occ_thresh={config.occ_thresh!r}")
         super().__init__(bounds, resolution, inflation, config)
         self.fine = LiveGrid(bounds, 0.5 * self.resolution, 0.0, replace(config, sub_cells=1))
         self._fshape = grid_shape(self.bounds, 0.5 * self.resolution)
-        # the commit keeps only the self term (1 where a cell is not free); the material
-        # squares' counts are added by _spread_sub
-        self._offsets = np.zeros((1, 2), np.int64)
-        self._koff = np.zeros(1, np.int64)
-        self._rows = [(0, 0)]
-        self._rows_arr = np.zeros((1, 2), np.int64)
-        self._sub_off = subcell_kernels(self.inflation, self.resolution)
-        assert max(int(np.abs(o).max()) for o in self._sub_off) <= self._r
-        self._sub_off.append(inflation_offsets(self.inflation, self.resolution))  # item 4: the whole square
+        # the cells straddling the workspace boundary (occupied from the start) count as
+        # return cells from the start, so that a floor is raised only with a state change
+        self._hf = np.float32(config.hit_floor)
+        self._floor[(self.log_odds.reshape(-1) >= np.float32(config.occ_thresh))] = self._hf
+        sub = subcell_kernels(self.inflation, self.resolution)
+        assert max(int(np.abs(o).max()) for o in sub) <= self._r
+        self._sub_off = sub + [np.zeros((1, 2), np.int64), self._offsets]
         self._sub_koff = [o[:, 0] * self._pw + o[:, 1] for o in self._sub_off]
         self._sub_koff_all = np.concatenate(self._sub_koff).astype(np.int64)
         self._sub_starts = np.concatenate([[0], np.cumsum([len(o) for o in self._sub_koff])]).astype(np.int64)
         self._sub_scratch = SpreadScratch(len(self._pad))
         self._use_sub_kernel = True  # the compiled spreading when available (False: NumPy, for tests)
         ny, nx = self.shape
-        self._contrib = np.zeros(ny * nx, np.int8)  # bit k: sub-cell k is a material square
-        self._pad[:] = 0
-        self.blocked[...] = (self.states() != FREE).astype(np.int32)
+        self._code = np.zeros(ny * nx, np.int8)  # _CORR | sub-cell bits of return cells, else 0
         cells = np.arange(ny * nx, dtype=np.int64)
-        self._apply(cells, self._masks(cells))
+        self._apply(cells, self._codes(cells))
 
-    def _masks(self, cells: np.ndarray) -> np.ndarray:
-        """(K,) int8 material-square bits of cells (flat): 0 free, 15 unknown, occupied: its
-        sub-cells not free in the sub-cell grid (outside it: not free)."""
-        ny, nx = self.shape
+    def _codes(self, cells: np.ndarray) -> np.ndarray:
+        """(K,) int8 the correction of cells (flat): 0 unless a return cell; a return cell
+        ``_CORR`` | bit ``2 a + b`` for each of its sub-cells (row half ``a``, column half
+        ``b``) not free in the sub-cell grid (outside it: not free)."""
+        nx = self.shape[1]
         fy, fx = self._fshape
-        i, j = np.divmod(cells, nx)
-        lo = self.log_odds.reshape(-1)[cells]
-        c = self.config
-        state = np.where(lo <= c.free_thresh, FREE, np.where(lo >= c.occ_thresh, OCCUPIED, UNKNOWN))
-        # an unknown cell that ever reached occupied (its floor raised: a return cell that
-        # faded) keeps the sub-cell evidence; an unknown cell never occupied, its square
-        locked = self._floor[cells] == np.float32(c.hit_floor)
-        out = np.where((state == UNKNOWN) & ~locked, _FULL, 0).astype(np.int8)
-        occ = (state == OCCUPIED) | ((state == UNKNOWN) & locked)
-        if occ.any():
+        out = np.zeros(len(cells), np.int8)
+        ret = self._floor[cells] == self._hf
+        if ret.any():
+            oi, oj = np.divmod(cells[ret], nx)
             fl = self.fine.log_odds
-            oi, oj = i[occ], j[occ]
-            m = np.zeros(len(oi), np.int8)
+            ft = np.float32(self.config.free_thresh)
+            m = np.full(len(oi), _CORR, np.int8)
             for a in (0, 1):
                 for b in (0, 1):
                     fi, fj = 2 * oi + a, 2 * oj + b
                     inside = (fi < fy) & (fj < fx)
                     notfree = np.ones(len(oi), bool)
-                    notfree[inside] = fl[fi[inside], fj[inside]] > c.free_thresh
+                    notfree[inside] = fl[fi[inside], fj[inside]] > ft
                     m |= (notfree.astype(np.int8) << (2 * a + b))
-            out[occ] = m
+            out[ret] = m
         return out
 
     def _apply(self, cells: np.ndarray, new: np.ndarray) -> np.ndarray:
-        """Set the material bits of ``cells`` to ``new`` and spread the difference into the
+        """Set the corrections of ``cells`` to ``new`` and spread the difference into the
         counts (compiled, :mod:`~sanav_mj.mapping.subcell_kernel`, or NumPy). Returns the
         sorted flat cells whose count crossed zero."""
-        old = self._contrib[cells]
+        old = self._code[cells]
         ch = old != new
         cells, old, new = cells[ch], old[ch], new[ch]
-        self._contrib[cells] = new
+        self._code[cells] = new
         if not len(cells):
             return np.zeros(0, np.int64)
         ny, nx = self.shape
         ci, cj = np.divmod(cells, nx)
         centre = (ci + self._r) * self._pw + (cj + self._r)
-        # items: the whole square (one kernel) for 15, else one per sub-cell bit
-        oi, ni = _items(old), _items(new)
-        k = np.arange(5)
-        delta = (((ni[:, None] >> k) & 1) - ((oi[:, None] >> k) & 1)).astype(np.int8)
+        bit = np.array([1, 2, 4, 8, _CORR, _CORR], np.int8)
+        on_n = (new[:, None] & bit) != 0
+        on_o = (old[:, None] & bit) != 0
+        delta = ((on_n.astype(np.int8) - on_o.astype(np.int8)) * _SIGN).astype(np.int8)
         flipped = None
         if self._use_sub_kernel:
             flipped = spread_items(centre, delta, self._sub_koff_all, self._sub_starts, self._pad, self._sub_scratch)
@@ -204,7 +200,7 @@ class SubcellGrid(LiveGrid):
     def _spread_numpy(self, centre: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """The NumPy reference of :func:`spread_items`: the padded indices whose count crossed zero."""
         idx, dl = [], []
-        for k in range(5):
+        for k in range(len(self._sub_koff)):
             sel = delta[:, k] != 0
             if sel.any():
                 ko = self._sub_koff[k]
@@ -232,13 +228,13 @@ class SubcellGrid(LiveGrid):
         fi, fj = np.divmod(fine_changed, fx)
         parents = (fi // 2) * self.shape[1] + fj // 2
         cells = np.unique(np.concatenate([up.state_changed, parents]))
-        flips = self._apply(cells, self._masks(cells))
+        flips = self._apply(cells, self._codes(cells))
         return MapUpdate(up.state_changed, np.setxor1d(up.safe_changed, flips), up.route_changed)
 
     def integrate(self, origin, heading: float, ranges, hit, angles) -> MapUpdate:
         """As :meth:`LiveGrid.integrate`; the sub-cell grid takes the same scan."""
         up = super().integrate(origin, heading, ranges, hit, angles)
-        fup = self.fine.integrate(origin, heading, ranges, hit, angles)
+        fup = self.fine.integrate_tails(origin, heading, ranges, hit, angles, self.config.sub_tail)
         return self._refresh(up, fup.state_changed)
 
     def observe_free(self, cells) -> MapUpdate:
@@ -257,22 +253,29 @@ class SubcellGrid(LiveGrid):
         return self._refresh(up, fup.state_changed)
 
     def material_squares(self) -> np.ndarray:
-        """(ny, nx) int8 material bits per cell (bit ``2 a + b``: sub-cell row half ``a``,
-        column half ``b``; 15 = the whole square, 0 = none)."""
-        return self._contrib.reshape(self.shape).copy()
+        """(ny, nx) int8 the material squares per cell: bit ``2 a + b`` (sub-cell row half
+        ``a``, column half ``b``) for the not-free sub-cells of a return cell, 15 (the whole
+        square) for any other non-free cell, 0 for a free cell."""
+        ny, nx = self.shape
+        code = self._code.reshape(ny, nx)
+        out = np.where(self.states() != FREE, 15, 0).astype(np.int8)
+        ret = (code & _CORR) != 0
+        out[ret] = code[ret] & 15
+        return out
 
     def blocked_reference(self) -> np.ndarray:
-        """(ny, nx) int32 the counts recomputed from scratch (the self term and every
-        material square, by brute force over the kernels): equals :attr:`blocked` after any
-        sequence of updates (tested)."""
+        """(ny, nx) int32 the counts recomputed from scratch (the whole square of every
+        non-free cell but a return cell; a return cell itself and its not-free sub-cells,
+        from :meth:`material_squares`, by brute force over the kernels): equals
+        :attr:`blocked` after any sequence of updates (tested)."""
         ny, nx = self.shape
-        cells = np.arange(ny * nx, dtype=np.int64)
-        bits = self._masks(cells).reshape(ny, nx)
-        out = (self.states() != FREE).astype(np.int32)
+        ret = ((self._codes(np.arange(ny * nx, dtype=np.int64)) & _CORR) != 0).reshape(ny, nx)
+        mat = self.material_squares()
+        nonfree = self.states() != FREE
+        out = dilate_count(nonfree & ~ret, self._sub_off[5]) + ret.astype(np.int32)
         r = self._r
-        items = _items(bits)
-        for k, off in enumerate(self._sub_off):
-            m = np.pad(((items >> k) & 1).astype(np.int32), r)
-            for di, dj in off:  # a material square at C counts at C + (di, dj)
+        for k in range(4):
+            m = np.pad(((mat >> k) & 1).astype(np.int32) * ret, r)
+            for di, dj in self._sub_off[k]:  # a material sub-cell of C counts at C + (di, dj)
                 out += m[r - di:r - di + ny, r - dj:r - dj + nx]
         return out
