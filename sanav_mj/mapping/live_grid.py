@@ -121,6 +121,17 @@ class LiveGridConfig:
             it is read only inside return cells, near the ends of beams; the crossings further
             back cost the most and only add free observations (leaving them out is the
             conservative side). Default 0.15 m: 7.5 times the lidar's 0.02 m noise.
+        sub_margin: [m] with ``sub_cells`` 2, the not-free sub-cells of a return cell count
+            as their squares grown by this much (the inflation radius plus ``sub_margin`` from
+            them), >= 0, at most half a cell. Default 0: with ``sub_free_thresh`` -1.2 the
+            offline check found no safe cell within the known map's inflation of an obstacle
+            without it (docs/results.md, where 6.25 mm is measured too).
+        sub_free_thresh: with ``sub_cells`` 2, a sub-cell counts as free of material only at
+            log-odds ``<= sub_free_thresh`` (stricter than ``free_thresh``: one crossing makes a
+            cell free, and a beam whose range noise overshoots a surface crosses sub-cells
+            inside the obstacle before any return lands there; measured: a sub-cell wholly
+            inside a cylinder called free after one crossing). Default -1.2: three crossings
+            more than 2.5 times the returns.
     """
 
     l_free: float = -0.4
@@ -135,10 +146,19 @@ class LiveGridConfig:
     floor_at: float | None = 0.5
     sub_cells: int = 1
     sub_tail: float = 0.15
+    sub_margin: float = 0.0
+    sub_free_thresh: float = -1.2
 
     def __post_init__(self) -> None:
         if not (isinstance(self.sub_tail, (int, float)) and math.isfinite(self.sub_tail) and self.sub_tail > 0):
             raise ValueError(f"LiveGridConfig.sub_tail must be a finite number > 0 [m], got {self.sub_tail!r}")
+        if not (isinstance(self.sub_margin, (int, float)) and math.isfinite(self.sub_margin)
+                and self.sub_margin >= 0):
+            raise ValueError(f"LiveGridConfig.sub_margin must be a finite number >= 0 [m], got {self.sub_margin!r}")
+        if self.sub_cells == 2 and not (isinstance(self.sub_free_thresh, (int, float))
+                                        and self.l_min <= self.sub_free_thresh <= self.free_thresh):
+            raise ValueError(f"LiveGridConfig.sub_free_thresh must be in [l_min, free_thresh] = [{self.l_min}, "
+                             f"{self.free_thresh}], got {self.sub_free_thresh!r}")
         if isinstance(self.sub_cells, bool) or self.sub_cells not in (1, 2):
             raise ValueError(f"LiveGridConfig.sub_cells must be 1 or 2 [sub-cells per cell edge], "
                              f"got {self.sub_cells!r}")
@@ -427,7 +447,7 @@ class LiveGrid:
             self.log_odds[-1, :] = config.l_max
         # the safe (and route) kernel: the inflation plus config.noise_cells cells
         self._offsets = inflation_offsets(self.inflation + config.noise_cells * h, h)
-        r = int(np.abs(self._offsets).max())
+        r = max(int(np.abs(self._offsets).max()), self._extra_reach())
         self._r = r
         self._pw = nx + 2 * r  # padded width: neighbourhood updates need no bounds checks
         self._pad = np.zeros((ny + 2 * r) * self._pw, dtype=np.int32)
@@ -461,6 +481,11 @@ class LiveGrid:
         self._cells = np.empty(ny * nx, dtype=np.int64)  # the compiled traversal's output
         self._rows_arr = np.array(self._rows, dtype=np.int64).reshape(-1, 2)
         self._route_rows_arr = np.array(self._route_rows, dtype=np.int64).reshape(-1, 2)
+
+    def _extra_reach(self) -> int:
+        """[cells] the least padding of the count arrays beyond the kernel's (subclasses
+        whose own kernels reach further; here 0)."""
+        return 0
 
     @staticmethod
     def _row_runs(offsets: np.ndarray) -> list[tuple[int, int]]:

@@ -127,14 +127,16 @@ class SubcellGrid(LiveGrid):
                              f"hit_floor={config.hit_floor!r}, floor_at={config.floor_at!r}, "
                              f"occ_thresh={config.occ_thresh!r}")
         super().__init__(bounds, resolution, inflation, config)
-        self.fine = LiveGrid(bounds, 0.5 * self.resolution, 0.0, replace(config, sub_cells=1))
+        # its free threshold is sub_free_thresh: its state changes are the sub-cells' flips
+        self.fine = LiveGrid(bounds, 0.5 * self.resolution, 0.0, replace(config, sub_cells=1,
+                                                                         free_thresh=config.sub_free_thresh))
         self._fshape = grid_shape(self.bounds, 0.5 * self.resolution)
         # the cells straddling the workspace boundary (occupied from the start) count as
         # return cells from the start, so that a floor is raised only with a state change
         self._hf = np.float32(config.hit_floor)
         self._floor[(self.log_odds.reshape(-1) >= np.float32(config.occ_thresh))] = self._hf
-        sub = subcell_kernels(self.inflation, self.resolution)
-        assert max(int(np.abs(o).max()) for o in sub) <= self._r
+        sub = subcell_kernels(self.inflation + config.sub_margin, self.resolution)
+        assert max(int(np.abs(o).max()) for o in sub) <= self._r  # _extra_reach
         self._sub_off = sub + [np.zeros((1, 2), np.int64), self._offsets]
         self._sub_koff = [o[:, 0] * self._pw + o[:, 1] for o in self._sub_off]
         self._sub_koff_all = np.concatenate(self._sub_koff).astype(np.int64)
@@ -145,6 +147,11 @@ class SubcellGrid(LiveGrid):
         self._code = np.zeros(ny * nx, np.int8)  # _CORR | sub-cell bits of return cells, else 0
         cells = np.arange(ny * nx, dtype=np.int64)
         self._apply(cells, self._codes(cells))
+
+    def _extra_reach(self) -> int:
+        """[cells] the sub-cell kernels' reach (inflation + ``sub_margin`` from a half cell)."""
+        return max(int(np.abs(o).max()) for o in subcell_kernels(self.inflation + self.config.sub_margin,
+                                                                 self.resolution))
 
     def _codes(self, cells: np.ndarray) -> np.ndarray:
         """(K,) int8 the correction of cells (flat): 0 unless a return cell; a return cell
@@ -157,7 +164,7 @@ class SubcellGrid(LiveGrid):
         if ret.any():
             oi, oj = np.divmod(cells[ret], nx)
             fl = self.fine.log_odds
-            ft = np.float32(self.config.free_thresh)
+            ft = np.float32(self.config.sub_free_thresh)
             m = np.full(len(oi), _CORR, np.int8)
             for a in (0, 1):
                 for b in (0, 1):

@@ -99,8 +99,8 @@ def test_sub_cell_kernels_measure_square_to_square():
 @pytest.mark.parametrize("seed", range(6))
 def test_a_safe_cell_keeps_the_inflation_from_material_at_known_sub_cell_positions(seed):
     """Material (random segments, at random sub-cell positions) whose every cell and sub-cell
-    holds a return, all else observed free: the evidence assumption (ii) of the module holds
-    exactly. Every safe cell's square is then more than the inflation from every segment
+    holds two returns, all else observed free three times (log-odds -1.2, a sub-cell free at
+    ``sub_free_thresh``): the evidence assumptions of the module hold exactly. Every safe cell's square is then more than the inflation from every segment
     (exact distance), and the safe cells include every safe cell of the plain rule."""
     rng = np.random.default_rng(seed)
     h, infl = 0.025, 0.0706
@@ -110,7 +110,8 @@ def test_a_safe_cell_keeps_the_inflation_from_material_at_known_sub_cell_positio
     ny, nx = sub.shape
     cells = np.arange(ny * nx)
     for g in (plain, sub):
-        g.observe_free(cells)
+        for _ in range(3):  # log-odds -1.2: free, and a sub-cell at sub_free_thresh
+            g.observe_free(cells)
     segs = [(tuple(rng.uniform(0.1, 1.1, 2)), tuple(rng.uniform(0.1, 0.8, 2))) for _ in range(3)]
     segs = [((p[0], p[1]), (p[0] + 0.25 * (q[0] - 0.5), q[1])) for p, q in segs]
     pts = []
@@ -118,7 +119,7 @@ def test_a_safe_cell_keeps_the_inflation_from_material_at_known_sub_cell_positio
         n = int(math.hypot(q[0] - p[0], q[1] - p[1]) / 5e-4) + 2
         pts += [(p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1])) for t in np.linspace(0, 1, n)]
     for g in (plain, sub):
-        _hit_at(g, pts)
+        _hit_at(g, pts + pts)  # two returns: -1.2 + 2 = 0.8, occupied and a return cell
     safe = sub.safe()
     assert np.all(safe | ~plain.safe())  # never fewer safe cells than the plain rule
     for i, j in zip(*np.nonzero(safe)):
@@ -153,10 +154,11 @@ def test_the_sub_cell_rule_opens_more_cells_than_the_plain_rule():
         plain = LiveGrid((0.0, 0.0, 1.2, 0.9), h, infl, LiveGridConfig())
         sub = SubcellGrid((0.0, 0.0, 1.2, 0.9), h, infl, SUB)
         for g in (plain, sub):
-            g.observe_free(np.arange(g.shape[0] * g.shape[1]))
+            for _ in range(3):
+                g.observe_free(np.arange(g.shape[0] * g.shape[1]))
         pts = [tuple(rng.uniform(0.2, 0.9, 2) * (1.2, 0.9)) for _ in range(20)]
         for g in (plain, sub):
-            _hit_at(g, pts)
+            _hit_at(g, pts + pts)
         gained += int(sub.safe().sum()) - int(plain.safe().sum())
     assert gained > 0
 
@@ -243,6 +245,10 @@ def test_bad_settings_are_refused():
     with pytest.raises(ValueError, match="sub_cells == 2"):
         SubcellGrid((0, 0, 1, 1), 0.05, 0.1, LiveGridConfig())
     with pytest.raises(ValueError, match="floor_at"):
-        SubcellGrid((0, 0, 1, 1), 0.05, 0.1, LiveGridConfig(sub_cells=2, floor_at=None, l_min=-1.0))
+        SubcellGrid((0, 0, 1, 1), 0.05, 0.1, LiveGridConfig(sub_cells=2, floor_at=None))
+    with pytest.raises(ValueError, match="sub_free_thresh"):
+        LiveGridConfig(sub_cells=2, l_min=-1.0)
+    with pytest.raises(ValueError, match="sub_margin"):
+        LiveGridConfig(sub_margin=-0.01)
     with pytest.raises(ValueError, match="tail"):
         LiveGrid((0, 0, 1, 1), 0.05, 0.1).integrate_tails((0.5, 0.5), 0.0, [0.3], [True], [0.0], -1.0)
