@@ -241,7 +241,9 @@ class SubcellGrid(LiveGrid):
     def integrate(self, origin, heading: float, ranges, hit, angles) -> MapUpdate:
         """As :meth:`LiveGrid.integrate`; the sub-cell grid takes the same scan."""
         up = super().integrate(origin, heading, ranges, hit, angles)
-        fup = self.fine.integrate_tails(origin, heading, ranges, hit, angles, self.config.sub_tail)
+        tail = self.config.sub_tail
+        fup = (self.fine.integrate(origin, heading, ranges, hit, angles) if tail is None
+               else self.fine.integrate_tails(origin, heading, ranges, hit, angles, tail))
         return self._refresh(up, fup.state_changed)
 
     def observe_free(self, cells) -> MapUpdate:
