@@ -58,7 +58,8 @@ CONFIGS = {
     "subcell": LiveGridConfig(sub_cells=2),
     "subcell_f-0.35": LiveGridConfig(sub_cells=2, sub_free_thresh=-0.35),
     "subcell_f-2": LiveGridConfig(sub_cells=2, sub_free_thresh=-2.0),
-    "subcell_tail0.15": LiveGridConfig(sub_cells=2, sub_tail=0.15),
+    "subcell_whole": LiveGridConfig(sub_cells=2, sub_tail=None),
+    "subcell_tail0.3": LiveGridConfig(sub_cells=2, sub_tail=0.3),
 }
 
 
