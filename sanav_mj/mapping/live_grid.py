@@ -108,14 +108,15 @@ class LiveGridConfig:
             BARN-like worlds with the lidar in the discs mode it did not help (67 against 73
             of 100 reached, docs/results.md), the robot then stops at passages whose safe
             cells stay closed.
-        sub_cells: sub-cells per cell edge [1] of the *material evidence* of occupied cells
-            (:class:`~sanav_mj.mapping.subcell_grid.SubcellGrid`, built by
-            :class:`~sanav_mj.mapping.sensed_map.SensedMap` when 2). 1 (default): an occupied
-            cell counts against the safe grid with its whole square. 2: a second log-odds
-            grid of half the edge, updated by the same beams with the same rules, tells which
-            quarters of an occupied cell may hold material, and the safe grid measures from
-            those quarters' squares only (unknown cells still with their whole square; safe
-            cells still observed free). A plain :class:`LiveGrid` ignores it.
+        sub_cells: sub-cells per cell edge [1] of the *material evidence* of return cells
+            (cells whose floor was raised; :class:`~sanav_mj.mapping.subcell_grid.SubcellGrid`,
+            built by :class:`~sanav_mj.mapping.sensed_map.SensedMap` when 2). 1 (default):
+            every non-free cell counts against the safe grid with its whole square. 2: a
+            second log-odds grid of half the edge, updated by the same scans with the same
+            rules, tells which quarters of a return cell may hold material, and the safe grid
+            measures from those quarters' squares only (other non-free cells still with their
+            whole square; safe cells still observed free). A plain :class:`LiveGrid` ignores
+            it.
         sub_tail: [m] with ``sub_cells`` 2, the sub-cell grid counts each beam as crossing
             only the sub-cells of its last ``sub_tail`` metres (:meth:`LiveGrid.integrate_tails`;
             None: whole beams, as the cell grid). A beam grazing an obstacle's silhouette

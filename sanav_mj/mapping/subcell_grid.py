@@ -1,4 +1,4 @@
-"""The live grid whose safe cells measure from the sub-cell evidence of occupied cells.
+"""The live grid whose safe cells measure from the sub-cell evidence of return cells.
 
 :class:`~sanav_mj.mapping.live_grid.LiveGrid` knows only that material lies somewhere in a
 non-free cell; its safe grid measures the inflation radius from the whole square of every
@@ -7,22 +7,26 @@ occupied now and then, and a passage loses up to about a cell per side against t
 rasterisation of the known map (docs/results.md, "Why the last 15 lidar failures stop").
 
 :class:`SubcellGrid` keeps a second log-odds grid of half the cell edge (the *sub-cells*),
-updated by the same beams with the same rules (crossings, returns, hit floor), and counts
-an occupied cell against the safe grid only with the squares of its sub-cells that are
-not free there. The rule (``LiveGridConfig.sub_cells == 2``):
+updated by the same scans with the same rules (crossings, returns, hit floor; each beam's
+crossings only over its last ``LiveGridConfig.sub_tail`` metres), and counts a *return
+cell* (a cell whose floor was raised: it turned occupied on a return and never turns free
+again) against the safe grid only with the squares of its sub-cells that are not free of
+material, a sub-cell being free of material at log-odds ``<= sub_free_thresh``. The rule
+(``LiveGridConfig.sub_cells == 2``):
 
     a cell is safe iff it is free, and no *material square* lies within the inflation
-    radius of its closed square, the material squares being: the square of every unknown
-    cell, and the square of every sub-cell that is not free (sub-cell grid) of an occupied
-    cell (sub-cells outside the sub-cell grid count as not free).
+    radius of its closed square, the material squares being: the whole square of every
+    non-free cell that is not a return cell (unknown space), and the square of every
+    sub-cell of a return cell that is not free of material (sub-cells outside the sub-cell
+    grid count as material).
 
 Guarantee. Assume (i) no material lies in a cell the grid calls free (the assumption of
-the plain rule), and (ii) no material lies in a sub-cell of an occupied cell that the
-sub-cell grid calls free. Every material point then lies in a material square (an unknown
-cell's, or a not-free sub-cell's of an occupied cell), so a safe cell's square is more than
-the inflation radius from every material point: parts of a surface no beam hit included,
-since the rule measures from whole (sub-)squares, never from end points. Unknown cells keep
-their whole square and a safe cell is observed free, so unknown space is never safe.
+the plain rule), and (ii) no material lies in a sub-cell of a return cell that is free of
+material in the sub-cell grid. Every material point then lies in a material square, so a
+safe cell's square is more than the inflation radius from every material point: parts of
+a surface no beam hit included, since the rule measures from whole (sub-)squares, never
+from end points. Unknown cells keep their whole square and a safe cell is observed free,
+so unknown space is never safe.
 
 What (ii) rests on, and what breaks it: a sub-cell holding material is called free when the
 log-odds walk drifts down there, i.e. when fewer than ``f* = -l_free / (l_occ - l_free)`` of
@@ -32,11 +36,12 @@ the beams reaching it end in it. For one beam at normal incidence with Gaussian 
 for a sub-cell holding a sliver (``depth -> sub``): 0.319 at ``sigma`` 0.02 m on 0.0125 m
 sub-cells, above ``f*`` 0.286 (the defaults); from ``sigma`` about 0.0225 m it falls below.
 So the rule is used only when the robot file's ``lidar_noise`` keeps the sliver fraction
-above ``f*`` (:func:`subcells_hold`, checked by ``eval/lidar.py`` ``lidar_grid``). Noise
-heavier than the model (or beams grazing a surface, which reach a sub-cell without ending
-in it) can still let a sliver of material drift free; the offline check
-(scripts/lidar_map_fidelity.py, ``subcell``) measures that no safe cell lies within the
-known map's inflation of an obstacle.
+above ``f*`` (:func:`subcells_hold`, checked by ``eval/lidar.py`` ``lidar_grid``). Not
+bounded by that model, and measured offline instead (scripts/lidar_map_fidelity.py,
+docs/results.md): the first crossings (a beam overshooting a surface by its noise crosses
+sub-cells inside the obstacle before a return lands there: ``sub_free_thresh``), beams
+grazing a silhouette (they cross the empty part of a sub-cell holding a sliver and end far
+behind: ``sub_tail``), and noise heavier than the robot file says.
 """
 
 from __future__ import annotations
