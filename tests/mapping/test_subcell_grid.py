@@ -252,3 +252,19 @@ def test_bad_settings_are_refused():
         LiveGridConfig(sub_margin=-0.01)
     with pytest.raises(ValueError, match="tail"):
         LiveGrid((0, 0, 1, 1), 0.05, 0.1).integrate_tails((0.5, 0.5), 0.0, [0.3], [True], [0.0], -1.0)
+
+
+def test_the_counts_fall_back_to_numpy_without_the_kernel(monkeypatch):
+    """With the compiled spreading unavailable (no compiler, SANAV_MJ_NO_CKERNEL=1) the
+    NumPy path keeps the same counts."""
+    from sanav_mj.mapping import subcell_kernel
+
+    monkeypatch.setattr(subcell_kernel, "_load", lambda: None)
+    assert not subcell_kernel.kernel_available()
+    g = SubcellGrid((0.0, 0.0, 4.0, 3.0), 0.05, 0.17, SUB)
+    angles = np.linspace(-2.3, 2.3, 181)
+    for pose in ((1.0, 1.0, 0.3), (2.5, 1.8, 2.0), (3.2, 0.9, -1.0)):
+        ranges, hit = room_scan(pose, angles, (0.2, 0.2, 3.8, 2.8), 4.0)
+        g.integrate(pose[:2], pose[2], ranges, hit, angles)
+        assert np.array_equal(g.blocked, g.blocked_reference())
+    assert g.safe().sum() > 100
