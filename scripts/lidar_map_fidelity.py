@@ -41,17 +41,25 @@ from sanav_mj.control.spec import ControllerSpec
 from sanav_mj.eval.prepare import map_inflation
 from sanav_mj.mapping.live_grid import FREE, LiveGrid, LiveGridConfig
 from sanav_mj.mapping.occupancy import rasterise
+from sanav_mj.mapping.subcell_grid import SubcellGrid
 from sanav_mj.scene import load_scenario
 from sanav_mj.sim.lidar import Lidar, lidar_config
 from sanav_mj.sim.plant import Plant
 
 #: the grids compared: before floor_at (every return locks its cell non-free), the default,
-#: the default with one cell of extra inflation, and a higher hit-fraction threshold.
+#: the default with one cell of extra inflation, a higher hit-fraction threshold, and the
+#: default with the sub-cell evidence of return cells (SubcellGrid, the discs mode's lidar runs),
+#: and that with a sub-cell free at free_thresh (-0.35, one crossing) and at -2.
 CONFIGS = {
     "before": LiveGridConfig(l_min=-1.0, floor_at=None),
     "default": LiveGridConfig(),
     "noise1": LiveGridConfig(noise_cells=1),
     "l_occ0.7": LiveGridConfig(l_occ=0.7),
+    "subcell": LiveGridConfig(sub_cells=2),
+    "subcell_f-0.35": LiveGridConfig(sub_cells=2, sub_free_thresh=-0.35),
+    "subcell_f-2": LiveGridConfig(sub_cells=2, sub_free_thresh=-2.0),
+    "subcell_whole": LiveGridConfig(sub_cells=2, sub_tail=None),
+    "subcell_tail0.3": LiveGridConfig(sub_cells=2, sub_tail=0.3),
 }
 
 
@@ -106,7 +114,7 @@ def measure(xml: str, step: float, seed: int, configs: dict) -> dict:
     yaw = np.arctan2(pts[look, 1] - ys, pts[look, 0] - xs)
     plant = Plant(sc)
     lidar = Lidar(plant.model, sc.obstacles, lidar_config(plant.model))
-    grids = {k: LiveGrid(sc.bounds, h, infl, c) for k, c in configs.items()}
+    grids = {k: (SubcellGrid if c.sub_cells == 2 else LiveGrid)(sc.bounds, h, infl, c) for k, c in configs.items()}
     rng = np.random.default_rng([seed, 16])
     flips = {k: 0 for k in configs}
     half = len(ss) // 2
@@ -156,9 +164,10 @@ def main(argv=None) -> int:
     ap.add_argument("worlds", nargs="+")
     ap.add_argument("--step", type=float, default=0.04, help="[m] pose spacing along the path")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--configs", default=",".join(CONFIGS), help="comma-separated subset of " + ", ".join(CONFIGS))
     a = ap.parse_args(argv)
     for xml in a.worlds:
-        res = measure(xml, a.step, a.seed, CONFIGS)
+        res = measure(xml, a.step, a.seed, {k: CONFIGS[k] for k in a.configs.split(",")})
         for k, v in res.items():
             print(xml.rsplit("/", 1)[-1], k, " ".join(f"{n}={x}" for n, x in v.items()), flush=True)
     return 0

@@ -82,7 +82,7 @@ def lidar_match(refine: float):
     return m if k == 1 else replace(m, radius_cells=m.radius_cells * k, xy_window=m.xy_window * k)
 
 
-def lidar_grid(cspec: ControllerSpec):
+def lidar_grid(cspec: ControllerSpec, noise_std: float | None = None, resolution: float | None = None):
     """The :class:`~sanav_mj.mapping.live_grid.LiveGridConfig` of a lidar run: the default
     (stray returns outvoted: ``floor_at`` 0.5, ``l_min`` -5) in ``"discs"`` mode, whose
     sensed cells are 0.025 m (:func:`lidar_cell`), the rule that default was derived and
@@ -94,11 +94,21 @@ def lidar_grid(cspec: ControllerSpec):
     non-free at once (``l_min`` -1, ``floor_at`` None): with the new one the envelope corner
     lost u_shape seed 0 (stuck), the steps whose true position lay outside that step's safe
     areas rose from 107 to 177 in 16 runs and the smallest clearance fell from 0.166 to 0.112
-    m (2026-11-25, docs/results.md)."""
+    m (2026-11-25, docs/results.md).
+
+    In ``"discs"`` mode, given the lidar's range noise ``noise_std`` [m] and the sensed
+    cells' edge ``resolution`` [m], occupied cells count against the safe grid with their
+    sub-cell evidence (``sub_cells=2``, :mod:`sanav_mj.mapping.subcell_grid`) when that
+    noise keeps a sub-cell holding a sliver of material occupied
+    (:func:`~sanav_mj.mapping.subcell_grid.subcells_hold`), else with their whole square."""
     from sanav_mj.mapping.live_grid import LiveGridConfig
+    from sanav_mj.mapping.subcell_grid import subcells_hold
 
     if cspec.sa_mpc.footprint == "discs":
-        return LiveGridConfig()
+        base = LiveGridConfig()
+        if noise_std is not None and resolution is not None and subcells_hold(resolution, noise_std, base):
+            return LiveGridConfig(sub_cells=2)
+        return base
     return LiveGridConfig(l_min=-1.0, floor_at=None)
 
 
@@ -166,7 +176,7 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
     return SensingSAMPC(scenario.robot, scenario.bounds, scenario.goal, inflation, lcfg.offset,
                         spec.sa_mpc, planner_config(scenario.robot, spec),
                         SensingConfig(map=SensedMapConfig(resolution=resolution, match=lidar_match(base / resolution),
-                                                          grid=lidar_grid(cspec)),
+                                                          grid=lidar_grid(cspec, lcfg.noise_std, resolution)),
                                       footprint=robot_footprint(scenario.model), narrow_width=narrow,
                                       refresh=mpc.footprint == "discs", straight_brake=mpc.footprint == "discs",
                                       grow=mpc.footprint_grow if mpc.footprint == "discs" else 0.0))

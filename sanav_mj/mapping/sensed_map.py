@@ -27,6 +27,7 @@ from sanav_mj.mapping import rect_kernel
 from sanav_mj.mapping.incremental import IncrementalSafeAreas
 from sanav_mj.mapping.live_grid import LiveGrid, LiveGridConfig
 from sanav_mj.mapping.safe_areas import SafeAreas
+from sanav_mj.mapping.subcell_grid import SubcellGrid
 from sanav_mj.mapping.scan_match import LikelihoodField, MatchResult, ScanMatchConfig, ScanMatcher, scan_points
 
 
@@ -104,7 +105,9 @@ class SensedMap:
             raise ValueError(f"sensor_offset must be 2 finite numbers [m], got {sensor_offset!r}")
         self.config = config
         self.sensor_offset = off
-        self.grid = LiveGrid(bounds, config.resolution, inflation, config.grid)
+        # the sub-cell evidence of occupied cells (LiveGridConfig.sub_cells == 2): SubcellGrid
+        self.grid = (SubcellGrid if config.grid.sub_cells == 2 else LiveGrid)(bounds, config.resolution, inflation,
+                                                                              config.grid)
         self.areas = IncrementalSafeAreas(self.grid.safe_grid(), config.min_cell, config.tile)
         self._snapshot = self.areas.safe_areas()
         self._safe_stale = False  # safe areas updated since the last safe snapshot

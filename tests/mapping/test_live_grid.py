@@ -609,3 +609,28 @@ def test_the_default_threshold_separates_material_cells_from_cells_in_front():
     assert np.all(np.diff(beam_hit_fraction(d, c, sigma)[::-1]) >= -1e-12)
     with pytest.raises(ValueError, match="sigma"):
         beam_hit_fraction(0.0, c, 0.0)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_integrate_tails_is_integrate_for_long_tails_and_crosses_less_for_short(compiled):
+    """``integrate_tails`` with a tail longer than every beam gives the grid ``integrate``
+    gives (the same log-odds, counts and flips); with a short tail, only cells near the
+    beams' ends get free observations (never more than with whole beams), returns alike."""
+    rng = np.random.default_rng(4)
+    angles = np.linspace(-2.3, 2.3, 181)
+    gs = [LiveGrid((0.0, 0.0, 6.0, 4.0), 0.05, 0.2) for _ in range(3)]
+    for g in gs:
+        g._use_kernel = g._use_commit_kernel = compiled
+    for step in range(8):
+        pose = (rng.uniform(0.5, 2.3), rng.uniform(0.5, 3.5), rng.uniform(-np.pi, np.pi))
+        ranges, hit = room_scan(pose, angles, (0.2, 0.2, 5.8, 3.8), 5.0)
+        ranges = np.where(hit, ranges + rng.normal(0, 0.02, len(ranges)), ranges)
+        a = gs[0].integrate(pose[:2], pose[2], ranges, hit, angles)
+        b = gs[1].integrate_tails(pose[:2], pose[2], ranges, hit, angles, 100.0)
+        gs[2].integrate_tails(pose[:2], pose[2], ranges, hit, angles, 0.3)
+        assert np.array_equal(gs[0].log_odds, gs[1].log_odds)
+        assert np.array_equal(gs[0].blocked, gs[1].blocked)
+        assert np.array_equal(np.sort(a.state_changed), np.sort(b.state_changed))
+        assert np.array_equal(a.safe_changed, b.safe_changed)
+    assert np.all(gs[2].log_odds >= gs[0].log_odds)  # fewer free observations, the same returns
+    assert np.count_nonzero(gs[2].log_odds > gs[0].log_odds) > 100
