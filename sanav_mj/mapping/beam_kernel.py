@@ -594,7 +594,7 @@ def commit_cells(touched: np.ndarray, mark: np.ndarray, log_odds: np.ndarray, fl
     scratch.reserve(T, spread)
     out = scratch.out
     state_out = out[:T]
-    cells_tmp = out[T:2 * T]
+    # out[T:2 * T] is the kernel's scratch for the touched cells (base + 8 * T below)
     safe_out = out[2 * T:2 * T + spread]
     route_out = out[2 * T + spread:2 * T + 2 * spread]
     n = scratch.n

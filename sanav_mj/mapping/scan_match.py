@@ -441,7 +441,6 @@ class ScanMatcher:
         Returns:
             The :class:`MatchResult`.
         """
-        c = self.config
         prior = np.asarray(prior, dtype=float).reshape(3)
         s = np.asarray(points, dtype=float).reshape(-1, 2)
         normals = np.asarray(normals, dtype=float).reshape(-1, 2)
