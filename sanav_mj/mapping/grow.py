@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sanav_mj.mapping.grow_kernel import grow_cells
+from sanav_mj.mapping.grow_kernel import grow_cells, summed_area
 from sanav_mj.mapping.occupancy import OccupancyGrid
 
 __all__ = ["FreeCells", "grow_rect"]
@@ -47,14 +47,20 @@ class FreeCells:
     tighten: float = 0.0
 
     @staticmethod
-    def of(grid: OccupancyGrid, limit: float = 1.0, tighten: float = 0.0) -> FreeCells:
-        """The table of ``grid`` (its ``occupied`` cells), with growth ``limit`` and ``tighten`` [m] (>= 0)."""
+    def of(grid: OccupancyGrid, limit: float = 1.0, tighten: float = 0.0, use_kernel: bool = True) -> FreeCells:
+        """The table of ``grid`` (its ``occupied`` cells), with growth ``limit`` and ``tighten`` [m] (>= 0).
+
+        ``use_kernel``: False forces the NumPy ``cumsum`` reference (else one pass of the
+        compiled :func:`~sanav_mj.mapping.grow_kernel.summed_area` when available; the same
+        integers)."""
         for name, v in (("limit", limit), ("tighten", tighten)):
             if not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be finite and >= 0 [m], got {v!r}")
-        occ = np.asarray(grid.occupied, dtype=np.int64)
-        sat = np.zeros((occ.shape[0] + 1, occ.shape[1] + 1), dtype=np.int64)
-        sat[1:, 1:] = occ.cumsum(axis=0).cumsum(axis=1)
+        sat = summed_area(grid.occupied) if use_kernel else None
+        if sat is None:  # the reference (and the path without the compiled kernel)
+            occ = np.asarray(grid.occupied, dtype=np.int64)
+            sat = np.zeros((occ.shape[0] + 1, occ.shape[1] + 1), dtype=np.int64)
+            sat[1:, 1:] = occ.cumsum(axis=0).cumsum(axis=1)
         return FreeCells(sat, np.asarray(grid.origin, dtype=float).copy(), float(grid.resolution), float(limit),
                          float(tighten))
 

@@ -22,7 +22,7 @@ import numpy as np
 from sanav_mj.mapping.beam_kernel import NO_KERNEL_ENV, address
 from sanav_mj.native import kernel_loader
 
-__all__ = ["kernel_available", "grow_cells"]
+__all__ = ["kernel_available", "grow_cells", "summed_area"]
 
 _SOURCE = r"""
 #include <stdint.h>
@@ -51,11 +51,31 @@ void sanav_grow_box(const int64_t *s, int64_t st, int64_t *box, int64_t lo_i, in
     }
     box[0] = i0; box[1] = j0; box[2] = i1; box[3] = j1;
 }
+
+/* summed-area table sat (ny+1, nx+1) of the (ny, nx) 0/1 bytes occ, row 0 and column 0
+   zero: sat[i+1][j+1] = sat[i][j+1] + (occupied cells in row i, columns <= j), integers */
+void sanav_sat(const uint8_t *occ, int64_t ny, int64_t nx, int64_t *sat)
+{
+    int64_t st = nx + 1;
+    for (int64_t j = 0; j < st; ++j) sat[j] = 0;
+    for (int64_t i = 0; i < ny; ++i) {
+        const uint8_t *o = occ + i * nx;
+        const int64_t *up = sat + i * st;
+        int64_t *row = sat + (i + 1) * st;
+        int64_t acc = 0;
+        row[0] = 0;
+        for (int64_t j = 0; j < nx; ++j) {
+            acc += o[j] != 0;
+            row[j + 1] = up[j + 1] + acc;
+        }
+    }
+}
 """
 
 _i64, _ptr = ctypes.c_int64, ctypes.c_void_p
 _load = kernel_loader("grow", _SOURCE, "the rectangle growth kernel", NO_KERNEL_ENV, {
     "sanav_grow_box": (None, [_ptr, _i64, ctypes.POINTER(_i64), _i64, _i64, _i64, _i64]),
+    "sanav_sat": (None, [_ptr, _i64, _i64, _ptr]),
 })
 
 
@@ -84,3 +104,19 @@ def grow_cells(sat: np.ndarray, box: tuple[int, int, int, int], bounds: tuple[in
     b = (ctypes.c_int64 * 4)(*box)
     lib.sanav_grow_box(address(sat), sat.shape[1], b, *bounds)
     return b[0], b[1], b[2], b[3]
+
+
+def summed_area(occupied: np.ndarray) -> np.ndarray | None:
+    """The (ny+1, nx+1) int64 summed-area table of a (ny, nx) bool grid of occupied cells
+    (``sat[i, j]``: occupied cells in rows < i, columns < j), computed in one C pass (integer
+    sums: the same table as :meth:`~sanav_mj.mapping.grow.FreeCells.of`'s two ``cumsum``), or
+    None when the kernel is not available or ``occupied`` is not a 2-D bool array."""
+    lib = _load()
+    occ = np.asarray(occupied)
+    if lib is None or occ.dtype != np.bool_ or occ.ndim != 2:
+        return None
+    occ = np.ascontiguousarray(occ)
+    ny, nx = occ.shape
+    sat = np.empty((ny + 1, nx + 1), dtype=np.int64)
+    lib.sanav_sat(occ.ctypes.data if occ.size else None, ny, nx, address(sat))
+    return sat

@@ -35,7 +35,7 @@ import numpy as np
 from scipy.sparse import csr_array
 from scipy.sparse.csgraph import breadth_first_order, dijkstra
 
-from sanav_mj.mapping.safe_areas import SafeAreas, locate
+from sanav_mj.mapping.safe_areas import SafeAreas
 
 CONTAIN_TOL = 1e-9
 """[m] a point within this distance outside a rectangle's closed boundary counts as inside."""
@@ -533,11 +533,10 @@ class CorridorChoice:
 def _candidates(areas: SafeAreas, rects: np.ndarray, point: np.ndarray) -> np.ndarray:
     """Areas containing ``point``: the one ``locate`` gives first, then any others (a point on
     a shared edge or corner lies in several)."""
-    first = locate(areas, point, tol=CONTAIN_TOL)
-    if first < 0:
-        return np.zeros(0, dtype=np.int64)
-    others = np.flatnonzero(contains(rects, point[None])[0])
-    return np.concatenate([[first], others[others != first]]).astype(np.int64)
+    # one membership scan: ``locate``'s first area is the lowest-numbered one containing the
+    # point under the same closed tests grown by CONTAIN_TOL, so the hits are already in
+    # that order (a non-finite point is in none: every comparison is False)
+    return np.flatnonzero(contains(rects, point[None])[0]).astype(np.int64)
 
 
 def select_corridor(

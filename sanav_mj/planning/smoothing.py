@@ -53,6 +53,8 @@ from sanav_mj.planning.corridor import CONTAIN_TOL
 
 DEGREE = 3
 _FOUR = np.arange(4)
+# the 10 (p, q) pairs, q >= p, p-major: the banded products of SmoothingProblem
+_PQ_P, _PQ_Q = (np.array(v, dtype=np.int64) for v in zip(*[(p, q) for p in range(4) for q in range(p, 4)]))
 
 
 # --------------------------------------------------------------------------------------
@@ -93,18 +95,21 @@ def segment_of(s_nodes: np.ndarray, u: np.ndarray) -> np.ndarray:
     return np.minimum(np.maximum(i, 0), max(n_seg - 1, 0))
 
 
-def interpolate_uniform(waypoints: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+def interpolate_uniform(waypoints: np.ndarray, spacing: float,
+                        s_nodes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Uniform arc-length samples of the waypoint polyline (paper eq. 5-6).
 
     Args:
         waypoints: (W, 2) [m], W >= 1.
         spacing: [m] target distance between samples (> 0); the actual spacing is
             ``L / (M - 1)`` with ``M = ceil(L / spacing) + 1`` so both ends are samples.
+        s_nodes: (W,) [m] ``cumulative_length(waypoints)`` when already computed (None:
+            computed here).
 
     Returns:
         ``(u, points)``: (M,) [m] arc lengths from 0 to L and (M, 2) [m] the samples.
     """
-    s = cumulative_length(waypoints)
+    s = cumulative_length(waypoints) if s_nodes is None else s_nodes
     L = float(s[-1])
     m = max(2, int(np.ceil(L / spacing - 1e-9)) + 1)
     u = np.linspace(0.0, L, m)
@@ -250,17 +255,15 @@ class SmoothingProblem:
         h = L / max(len(self.u) - 1, 1)
         self.h = h
         first, vals = collocation(L, n_int, self.u)
-        rows, cols, bv = [], [], []
-        for p in range(4):
-            for q in range(p, 4):
-                rows.append(first + p)
-                cols.append(first + q)
-                bv.append(vals[:, p] * vals[:, q])
-        rows_a, cols_a = np.concatenate(rows), np.concatenate(cols)
-        self._flat = (DEGREE + rows_a - cols_a) * n + cols_a  # banded positions of the 10 products
-        self._prod = np.stack(bv)  # (10, M)
-        self._idx4 = (first[:, None] + np.arange(4)).ravel()
+        # the 10 products vals[:, p] * vals[:, q], q >= p, p-major (rows of _prod), and
+        # their banded positions (DEGREE + p - q) * n + first + q, flattened in that order
+        self._flat = ((DEGREE + _PQ_P - _PQ_Q) * n + _PQ_Q)[:, None] + first[None, :]
+        self._flat = self._flat.ravel()
+        self._prod = np.ascontiguousarray((vals[:, _PQ_P] * vals[:, _PQ_Q]).T)  # (10, M)
+        self._idx4 = (first[:, None] + _FOUR).ravel()
         self._vals = vals
+        self._px4 = np.repeat(self.points[:, 0], 4)  # each point once per basis function
+        self._py4 = np.repeat(self.points[:, 1], 4)
         self.btb, self.btp = self._assemble(None)
         self.gram = second_derivative_gram(L, n_int)
         # end constraints: S(0) = (c0 + 4 c1 + c2) / 6, S(L) = (c_{n-3} + 4 c_{n-2} + c_{n-1}) / 6
@@ -276,9 +279,8 @@ class SmoothingProblem:
         wv = np.full(self.u.shape[0], self.h) if weights is None else self.h * weights
         btb = np.bincount(self._flat, weights=(self._prod * wv).ravel(), minlength=(DEGREE + 1) * n)
         wb = (self._vals * wv[:, None]).ravel()
-        px = np.repeat(self.points[:, 0], 4)
-        py = np.repeat(self.points[:, 1], 4)
-        btp = np.column_stack([np.bincount(self._idx4, wb * px, minlength=n), np.bincount(self._idx4, wb * py, minlength=n)])
+        btp = np.column_stack([np.bincount(self._idx4, wb * self._px4, minlength=n),
+                               np.bincount(self._idx4, wb * self._py4, minlength=n)])
         return btb.reshape(DEGREE + 1, n), btp
 
     def solve(self, lam: float, weights: np.ndarray | None = None) -> SmoothingSpline:
@@ -536,7 +538,7 @@ def safe_curve(
     wp = np.asarray(waypoints, dtype=float)
     s_nodes = cumulative_length(wp)
     L = float(s_nodes[-1])
-    u_path, path = interpolate_uniform(wp, spacing)
+    u_path, path = interpolate_uniform(wp, spacing, s_nodes)
     problem = SmoothingProblem(u_path, path, knot_spacing)
     n_check = max(3, int(np.ceil(L / check_spacing)) + 1)
     u_chk = np.linspace(0.0, L, n_check)

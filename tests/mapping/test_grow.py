@@ -157,3 +157,32 @@ def test_compiled_growth_equals_the_python_loop():
                 assert np.array_equal(fast, ref), (k, rect, limit, fast, ref)
                 compared += 1
     assert compared > 5000
+
+
+def test_compiled_summed_area_table_equals_the_cumsums():
+    """FreeCells.of's one-pass compiled table (grow_kernel.summed_area) holds the integers of
+    the NumPy reference (two cumsums): random grids of 0-300 rows / columns at several fills,
+    C and Fortran order and strided views, all free and all occupied."""
+    from sanav_mj.mapping import grow_kernel
+
+    if not grow_kernel.kernel_available():
+        pytest.skip("no C compiler: only the NumPy tables exist")
+    rng = np.random.default_rng(16)
+    shapes = [(0, 0), (0, 5), (4, 0), (1, 1), (1, 17), (23, 1), (320, 480)]
+    shapes += [(int(rng.integers(1, 300)), int(rng.integers(1, 300))) for _ in range(20)]
+    for k, (ny, nx) in enumerate(shapes):
+        fill = (0.0, 1.0, 0.02, 0.3, 0.7)[k % 5]
+        occ = rng.random((ny, nx)) < fill
+        for view in (occ, np.asfortranarray(occ), np.asarray(rng.random((2 * ny, nx)) < fill)[::2]):
+            g = grid(np.zeros((max(ny, 1), max(nx, 1))))  # replaced below: any shape, incl. empty
+            object.__setattr__(g, "occupied", view)
+            fast = FreeCells.of(g).sat
+            ref = FreeCells.of(g, use_kernel=False).sat
+            assert fast.dtype == ref.dtype == np.int64 and fast.shape == (ny + 1, nx + 1)
+            assert np.array_equal(fast, ref), (ny, nx, fill)
+            assert fast.flags.c_contiguous
+    # a non-bool grid takes the reference path: the same table
+    g = grid(STAIRS)
+    object.__setattr__(g, "occupied", np.asarray(STAIRS, dtype=np.uint8))
+    assert grow_kernel.summed_area(g.occupied) is None
+    assert np.array_equal(FreeCells.of(g).sat, FreeCells.of(grid(STAIRS)).sat)
