@@ -418,6 +418,23 @@ def crossed_cells(u0, v0, u1, v1, ny: int, nx: int) -> np.ndarray:
     return expand_columns(segment_columns(u0, v0, u1, v1, ny, nx))
 
 
+def _scan_arrays(origin, heading: float, ranges, hit, angles):
+    """A scan's inputs checked (the arguments of :meth:`LiveGrid.integrate`): ``(origin (2,),
+    ranges (B',), hit (B',), world angles (B',))`` with the beams of non-finite range or angle
+    dropped, or None when the origin is not finite."""
+    o = np.asarray(origin, dtype=float).reshape(2)
+    r = np.asarray(ranges, dtype=float)
+    hit = np.asarray(hit, dtype=bool)
+    a = heading + np.asarray(angles, dtype=float)
+    if not (r.shape == hit.shape == a.shape and r.ndim == 1):
+        raise ValueError(f"ranges, hit, angles must be (B,) arrays of one length, got {r.shape}, "
+                         f"{hit.shape}, {a.shape}")
+    if not np.all(np.isfinite(o)):
+        return None
+    ok = np.isfinite(r) & np.isfinite(a)
+    return o, r[ok], hit[ok], a[ok]
+
+
 class LiveGrid:
     """The growing occupancy grid and its inflated safe grid.
 
@@ -619,17 +636,10 @@ class LiveGrid:
         Returns:
             The cells whose state and whose safe state changed.
         """
-        o = np.asarray(origin, dtype=float).reshape(2)
-        r = np.asarray(ranges, dtype=float)
-        hit = np.asarray(hit, dtype=bool)
-        a = heading + np.asarray(angles, dtype=float)
-        if not (r.shape == hit.shape == a.shape and r.ndim == 1):
-            raise ValueError(f"ranges, hit, angles must be (B,) arrays of one length, got {r.shape}, "
-                             f"{hit.shape}, {a.shape}")
-        ok = np.isfinite(r) & np.isfinite(a)
-        if not np.all(np.isfinite(o)):
+        scan = _scan_arrays(origin, heading, ranges, hit, angles)
+        if scan is None:
             return MapUpdate(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
-        r, hit, a = r[ok], hit[ok], a[ok]
+        o, r, hit, a = scan
         h = self.resolution
         ny, nx = self.shape
         u0 = (o[0] - self.origin[0]) / h
@@ -647,13 +657,7 @@ class LiveGrid:
                 return self._commit(touched, None)  # touched: read only during the call
         free = free_cells(segment_columns(np.full(len(r), u0), np.full(len(r), v0), u1, v1, ny, nx), mark,
                           self._stamp, False)
-        ei = np.floor(v1[hit]).astype(np.int64)
-        ej = np.floor(u1[hit]).astype(np.int64)
-        ein = (ei >= 0) & (ei < ny) & (ej >= 0) & (ej < nx)
-        occ = (ei * nx + ej)[ein]
-        extra = np.unique(occ[mark[occ] == 0])  # return cells no beam crossed
-        mark[occ] = 2  # a cell hit in this scan counts as hit, not crossed
-        return self._commit(np.concatenate([free, extra]), occ)
+        return self._commit_returns(free, u1[hit], v1[hit])
 
     def integrate_tails(self, origin, heading: float, ranges, hit, angles, tail: float) -> MapUpdate:
         """As :meth:`integrate`, but each beam counts as crossing only the cells of its last
@@ -670,17 +674,10 @@ class LiveGrid:
         """
         if not (math.isfinite(tail) and tail > 0):
             raise ValueError(f"tail must be a finite number > 0 [m], got {tail!r}")
-        o = np.asarray(origin, dtype=float).reshape(2)
-        r = np.asarray(ranges, dtype=float)
-        hit = np.asarray(hit, dtype=bool)
-        a = heading + np.asarray(angles, dtype=float)
-        if not (r.shape == hit.shape == a.shape and r.ndim == 1):
-            raise ValueError(f"ranges, hit, angles must be (B,) arrays of one length, got {r.shape}, "
-                             f"{hit.shape}, {a.shape}")
-        ok = np.isfinite(r) & np.isfinite(a)
-        if not np.all(np.isfinite(o)):
+        scan = _scan_arrays(origin, heading, ranges, hit, angles)
+        if scan is None:
             return MapUpdate(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
-        r, hit, a = r[ok], hit[ok], a[ok]
+        o, r, hit, a = scan
         h = self.resolution
         ny, nx = self.shape
         c, s = np.cos(a) / h, np.sin(a) / h
@@ -692,12 +689,20 @@ class LiveGrid:
         skip = (self.log_odds.reshape(-1), self.config.l_min) if self._use_kernel else None
         free = free_cells(segment_columns(u0 + start * c, v0 + start * s, u1, v1, ny, nx), mark, self._stamp,
                           self._use_kernel, skip)
-        ei = np.floor(v1[hit]).astype(np.int64)
-        ej = np.floor(u1[hit]).astype(np.int64)
+        return self._commit_returns(free, u1[hit], v1[hit])
+
+    def _commit_returns(self, free: np.ndarray, ue: np.ndarray, ve: np.ndarray) -> MapUpdate:
+        """Commit a scan: the crossed cells ``free`` (marked 1) and the returns at grid
+        coordinates ``ue``, ``ve`` (K,) [cells]; a cell hit in this scan counts as hit, not
+        crossed, and a return cell no beam crossed is touched too."""
+        ny, nx = self.shape
+        mark = self._mark
+        ei = np.floor(ve).astype(np.int64)
+        ej = np.floor(ue).astype(np.int64)
         ein = (ei >= 0) & (ei < ny) & (ej >= 0) & (ej < nx)
         occ = (ei * nx + ej)[ein]
         extra = np.unique(occ[mark[occ] == 0])  # return cells no beam crossed
-        mark[occ] = 2  # a cell hit in this scan counts as hit, not crossed
+        mark[occ] = 2
         return self._commit(np.concatenate([free, extra]), occ)
 
     def observe_free(self, cells) -> MapUpdate:
