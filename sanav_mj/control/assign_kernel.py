@@ -27,6 +27,7 @@ import ctypes
 
 import numpy as np
 
+from sanav_mj.mapping.beam_kernel import address
 from sanav_mj.native import NO_KERNEL_ENV, kernel_loader
 
 __all__ = ["assign_discs", "kernel_available", "relax_discs"]
@@ -192,11 +193,6 @@ def kernel_available() -> bool:
     return _load() is not None
 
 
-def _address(a: np.ndarray) -> int:
-    """Data address of a C-contiguous writable array (a ctypes view of its buffer, ~0.3 us)."""
-    return ctypes.addressof(ctypes.c_char.from_buffer(a))
-
-
 def assign_discs(both: np.ndarray, n_members: int, pts: np.ndarray, s_prev: np.ndarray | None, tol: float,
                  reanchor: float):
     """The zero-violation assignments of every disc along one chain, or None (kernel not
@@ -231,8 +227,8 @@ def assign_discs(both: np.ndarray, n_members: int, pts: np.ndarray, s_prev: np.n
     lo = np.empty(nd, dtype=np.int64)
     hi = np.empty(nd, dtype=np.int64)
     rc = lib.sanav_assign_discs(n1, nd, n_members, p.ctypes.data, b.ctypes.data, None if sp is None else sp.ctypes.data,
-                                tol * tol, reanchor**2, _address(ss), _address(plain), _address(ok), _address(lo),
-                                _address(hi))
+                                tol * tol, reanchor**2, address(ss), address(plain), address(ok), address(lo),
+                                address(hi))
     if rc != 0:
         return None
     return ss, plain, ok.view(bool), np.stack((lo, hi), axis=1)
@@ -261,5 +257,5 @@ def relax_discs(plain: np.ndarray, pts0: np.ndarray, tighten: tuple[float, bool]
     exc = np.empty(1)
     delta, follow = (0.0, False) if tighten is None else tighten
     rc = lib.sanav_relax_discs(nd, n1, p.ctypes.data, c.ctypes.data, int(tighten is not None), float(delta),
-                               int(bool(follow)), _address(out), _address(exc))
+                               int(bool(follow)), address(out), address(exc))
     return None if rc != 0 else (out, float(exc[0]))
