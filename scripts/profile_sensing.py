@@ -51,10 +51,17 @@ PHASES = [
     ("sanav_mj.control.tracking", "TrackingMPC.solve", "    solve (solver call and its set-up)"),
 ]
 
+_INHERITED = object()  # marks a method a class inherits (restored by deleting the wrapper)
 
-def _patch(acc: dict, cnt: dict) -> list[str]:
-    """Wrap every phase found in the tree on the path; the labels of those not found."""
-    missing = []
+
+def _patch(acc: dict, cnt: dict) -> tuple[list[str], list[tuple]]:
+    """Wrap every phase found in the tree on the path.
+
+    Returns the labels of the phases not found and the ``(owner, name, original)`` triples
+    that :func:`_unpatch` puts back (the wrappers are process-wide while they are in place).
+    """
+    missing: list[str] = []
+    undo: list[tuple] = []
     for mod_name, path, label in PHASES:
         mod = importlib.import_module(mod_name)
         owner, _, name = path.rpartition(".")
@@ -63,6 +70,8 @@ def _patch(acc: dict, cnt: dict) -> list[str]:
         if f is None:
             missing.append(label.strip())
             continue
+        # a class keeps its own attribute (staticmethod etc. as stored); an inherited one is deleted again
+        undo.append((obj, name, obj.__dict__.get(name, _INHERITED) if isinstance(obj, type) else f))
 
         def make(f, label):
             @functools.wraps(f)
@@ -75,7 +84,16 @@ def _patch(acc: dict, cnt: dict) -> list[str]:
                     cnt[label] += 1
             return g
         setattr(obj, name, make(f, label))
-    return missing
+    return missing, undo
+
+
+def _unpatch(undo: list[tuple]) -> None:
+    """Put back what :func:`_patch` wrapped, last first."""
+    for obj, name, original in reversed(undo):
+        if original is _INHERITED:
+            delattr(obj, name)
+        else:
+            setattr(obj, name, original)
 
 
 def main(argv=None) -> int:
@@ -85,9 +103,23 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--repeat", type=int, default=2, help="runs per scenario and mode (the fastest is printed)")
     a = p.parse_args(argv)
+    if a.repeat < 1:
+        print(f"profile_sensing: --repeat: expected an integer >= 1, got {a.repeat}", file=sys.stderr)
+        return 2
     acc: dict = defaultdict(float)
     cnt: dict = defaultdict(int)
-    missing = _patch(acc, cnt)
+    missing, undo = _patch(acc, cnt)
+    try:
+        return _profile(a, acc, cnt, missing)
+    except (FileNotFoundError, ValueError) as e:
+        print(f"profile_sensing: {e}", file=sys.stderr)
+        return 2
+    finally:
+        _unpatch(undo)
+
+
+def _profile(a: argparse.Namespace, acc: dict, cnt: dict, missing: list[str]) -> int:
+    """Run and print every scenario and footprint mode of ``a`` (see the module docstring)."""
     from sanav_mj.eval.episode import run_scenario
     from sanav_mj.eval.prepare import footprint_spec
 
@@ -97,7 +129,7 @@ def main(argv=None) -> int:
     for fp in a.footprint:
         for name in a.scenarios:
             best = None
-            for _ in range(max(1, a.repeat)):
+            for _ in range(a.repeat):
                 acc.clear()
                 cnt.clear()
                 d = run_scenario(name, seed=a.seed, controller_spec=footprint_spec("sa-mpc", fp),

@@ -45,3 +45,23 @@ def test_lidar_stall_trace_short_run(capsys, tmp_path):
     assert mod.main(["single_rect", "--every", "0"]) == 2
     assert mod.main(["single_rect", "--png", str(tmp_path / "no" / "m.png")]) == 2
     assert mod.main(["no_such_scenario"]) == 2
+
+
+def test_profile_sensing_every_phase_found_and_restored(capsys):
+    import sanav_mj.control.sensing as sensing
+    import sanav_mj.control.tracking as tracking
+
+    mod = _load("profile_sensing")
+    before = (sensing.SensingSAMPC.step, tracking.TrackingMPC.solve, sensing.make_plan)
+    assert mod.main(["single_rect", "--repeat", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "not in this tree" not in out  # every profiled phase still exists under its name
+    assert "single_rect disc: " in out and " replans, goal; " in out
+    step = next(line for line in out.splitlines() if "step (pipeline without the lidar cast)" in line)
+    assert int(step.split()[-1]) > 50  # calls: one per control step
+    # the wrappers are taken off again: the process runs unprofiled code afterwards
+    assert (sensing.SensingSAMPC.step, tracking.TrackingMPC.solve, sensing.make_plan) == before
+    assert mod.main(["single_rect", "--repeat", "0"]) == 2
+    assert mod.main(["no_such_scenario", "--repeat", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and err[0].startswith("profile_sensing: --repeat") and err[1].startswith("profile_sensing: ")
