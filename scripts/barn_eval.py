@@ -149,6 +149,12 @@ def cmd_closed_loop(args) -> int:
                                    ("footprint_grow", args.grow), ("footprint_grow_tighten", args.grow_tighten),
                                    ("footprint_route", args.route), ("footprint_box_margin", args.box_margin))
                  if v is not None}
+        if args.refine_fallback is not None:
+            given["footprint_refine_fallback"] = args.refine_fallback
+        if args.manoeuvre:  # manoeuvres where the corridor reference leaves the disc rows
+            from sanav_mj.planning.manoeuvre import ManoeuvreConfig
+
+            given["footprint_manoeuvre"] = ManoeuvreConfig()
         if args.no_tighten:  # the prediction derating without the tightening of the disc rows
             from sanav_mj.control.prediction import PredictionDerating
 
@@ -259,6 +265,12 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--resolution", type=float, default=0.05)
     c.add_argument("--refine", type=int, default=None,
                    help="discs mode: refine the cells by this factor where the free space is narrow")
+    c.add_argument("--refine-fallback", type=int, default=None,
+                   help="discs mode: refine the map by this factor where the plan finds no path "
+                        "(MPCConfig.footprint_refine_fallback)")
+    c.add_argument("--manoeuvre", action="store_true",
+                   help="discs mode: manoeuvres where the corridor reference leaves the disc rows "
+                        "(MPCConfig.footprint_manoeuvre)")
     c.add_argument("--refine-width", type=float, default=None, help="[m] discs mode, --refine > 1: narrow below this")
     c.add_argument("--grow", type=float, default=None,
                    help="[m] discs mode: grow the corridor chain's boxes to maximal free rectangles, at most this per side")
