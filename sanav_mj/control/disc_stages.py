@@ -43,7 +43,7 @@ from sanav_mj.control.stages import (
     tighten_relax,
 )
 
-def member_chain_of(areas, members: np.ndarray, margin: float, grow: bool = False) -> CorridorChain:
+def member_chain_of(areas, members: np.ndarray, margin: float, grow: float = 0.0) -> CorridorChain:
     """The :class:`CorridorChain` of a pose route's per-disc member sequence (``Plan.disc_corridors``).
 
     Args:
@@ -51,8 +51,8 @@ def member_chain_of(areas, members: np.ndarray, margin: float, grow: bool = Fals
         members: (L,) int indices into :func:`sanav_mj.planning.pose_search.member_boxes`
             (area ``r`` for ``r < R``, else the bridge across edge ``r - R``).
         margin: [m] each stay / advance box is shrunk by this (``box_margin``).
-        grow: the members grown to maximal free rectangles (``member_boxes(..., grow=True)``,
-            a plan whose ``info["grown_members"]`` is set).
+        grow: [m] > 0: the members grown to maximal free rectangles, at most this per side
+            (``member_boxes(..., grow=grow)``, a plan whose ``info["grown_members"]`` is set).
 
     Raises:
         ValueError: an index out of range, or consecutive members that do not overlap with

@@ -250,7 +250,8 @@ def manoeuvre_plan(plan: Plan, areas: SafeAreas, scenario: Scenario, spec: Contr
     mpc = spec.sa_mpc
     offsets, _ = robot_footprint(scenario.model).discs(mpc.footprint_discs)
     t0 = time.perf_counter()
-    found = manoeuvre_route(member_boxes(areas, 0.0, grow=True), plan.reference.states, offsets, mpc.footprint_manoeuvre)
+    cfg = mpc.footprint_manoeuvre
+    found = manoeuvre_route(member_boxes(areas, 0.0, grow=cfg.grow), plan.reference.states, offsets, cfg)
     ms = (time.perf_counter() - t0) * 1e3
     if found is None or found[2] == 0:
         why = "no manoeuvre" if found is None else "none needed"
@@ -262,7 +263,7 @@ def manoeuvre_plan(plan: Plan, areas: SafeAreas, scenario: Scenario, spec: Contr
                           pc.speed_fraction * scenario.robot.v_max, pc.speed_fraction * abs(lim.v_min),
                           pc.yaw_rate_fraction * scenario.robot.w_max, pc.accel_fraction * scenario.robot.a_max,
                           pc.yaw_rate_fraction * lim.alpha_max, pc.lateral_accel, info=dict(plan.info),
-                          margin=mpc.stage_box_margin, hold_at_stops=True, grow_members=True)
+                          margin=mpc.stage_box_margin, hold_at_stops=True, grow_members=cfg.grow)
     if new is None:
         return replace(plan, info=dict(plan.info, manoeuvre=why, manoeuvre_ms=ms))
     return replace(new, info=dict(new.info, manoeuvre=f"{n} stretches", manoeuvre_ms=ms))

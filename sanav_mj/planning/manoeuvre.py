@@ -47,6 +47,9 @@ class ManoeuvreConfig:
         goal_tol: [m] position tolerance at the goal pose; goal_yaw_tol: [rad] its yaw.
         back, ahead: [m] reference arc length before / after a stretch of bad samples at
             which the manoeuvre starts / ends (then the nearest admissible sample outward).
+        grow: [m] the member boxes (safe areas and portal bridges) of the manoeuvres and of
+            the route's per-disc chains are grown to maximal free rectangles, at most this
+            per side (:func:`~sanav_mj.planning.pose_search.member_boxes`).
         slack: [m] how far inside a member box every disc centre of a manoeuvre stays (a
             centre passing the corner where four safe areas meet lies in no box with slack,
             so the route's per-disc chains can walk it: they move on through overlaps).
@@ -67,13 +70,14 @@ class ManoeuvreConfig:
     back: float = 0.3
     ahead: float = 0.3
     slack: float = 0.001
+    grow: float = 0.25
 
     def __post_init__(self) -> None:
         for name in ("step", "turn", "cell", "yaw_cell", "goal_tol", "goal_yaw_tol"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"ManoeuvreConfig.{name}: expected a finite number > 0, got {v!r}")
-        for name in ("spin_cost", "arc_cost", "cusp_cost", "back", "ahead", "slack"):
+        for name in ("spin_cost", "arc_cost", "cusp_cost", "back", "ahead", "slack", "grow"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"ManoeuvreConfig.{name}: expected a finite number >= 0, got {v!r}")

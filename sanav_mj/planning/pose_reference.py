@@ -384,7 +384,7 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
                v_cap: float, v_rev_cap: float, w_cap: float, a_cap: float, alpha_cap: float,
                a_lat: float, info: dict[str, Any] | None = None,
                raster: PointRaster | None = None, margin: float = 0.02, slow_clearance: float = 0.0,
-               slow_floor: float = 0.3, hold_at_stops: bool = False, grow_members: bool = False) -> tuple[Plan | None, str]:
+               slow_floor: float = 0.3, hold_at_stops: bool = False, grow_members: float = 0.0) -> tuple[Plan | None, str]:
     """A :class:`Plan` following a pose route, or ``(None, why)`` when its corridor does not
     cover every disc centre monotonically (see the module docstring).
 
@@ -409,7 +409,8 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
             robot arrives. Off by default: measured on the 100 worlds 72 / 100 (BARN 0.339)
             against 73 / 100 (0.342) without (barn_0086 stalls with it; barn_0052 succeeds
             only with it and the slow-down together).
-        grow_members: the per-disc chains' members grown to maximal free rectangles
+        grow_members: [m] > 0: the per-disc chains' members grown to maximal free
+            rectangles, at most this per side
             (:func:`~sanav_mj.planning.pose_search.member_boxes` with ``grow``; the plan's
             ``info["grown_members"]`` tells SA-MPC to build its chains the same way).
         raster: the free set the route was searched on; given, the route is smoothed
@@ -465,7 +466,7 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
     times = time_poses(dense, kinds, v_cap, v_rev_cap, w_cap, a_cap, alpha_cap, a_lat, v_scale)
     states, inputs = sample_reference(dense, times, dt)
     pos = chain_walk(rects, corridor, disc_points(states[:, 0], states[:, 1], states[:, 2], offsets)[:, c])
-    if pos is None and grow_members:  # grown members: the centre may cut a corner of the plain areas
+    if pos is None and grow_members > 0:  # grown members: the centre may cut a corner of the plain areas
         pos = _loose_walk(rects, corridor, disc_points(states[:, 0], states[:, 1], states[:, 2], offsets)[:, c])
     if pos is None:  # the samples are points of the dense path; guard
         return None, "reference samples not covered by the corridor"
@@ -476,8 +477,8 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
     ref = Reference(dt=dt, states=states, inputs=inputs, area=corridor[pos], stops=stops)
     path_len = float(np.hypot(*np.diff(dense[:, :2], axis=0).T).sum())
     inf = dict(info or {})
-    if grow_members:
-        inf["grown_members"] = True
+    if grow_members > 0:
+        inf["grown_members"] = float(grow_members)
     inf.update(pose_route=True, pose_smoothed=smoothed, corridor_areas=int(corridor.size), path_length_m=path_len,
                duration_s=float(times[-1]), pose_search_ms=route.time_ms, pose_nodes=route.nodes,
                pose_reverse_m=float(sum(np.hypot(*(b[:2] - a[:2])) for a, b, k in
