@@ -347,8 +347,8 @@ class MPCConfig(TrackingConfig):
     footprint_prediction: PredictionDerating | None = PredictionDerating()
     footprint_open_speed: float | None = 1.0
     footprint_open_room: float = 0.15
-    footprint_manoeuvre: ManoeuvreConfig | None = None
-    footprint_refine_fallback: int = 0
+    footprint_manoeuvre: ManoeuvreConfig | None = ManoeuvreConfig()
+    footprint_refine_fallback: int = 4
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -38,12 +38,16 @@ class Prepared:
             parts are also reachable as ``grid``, ``leaves`` and ``areas``.
         plan: planned corridor and reference from the scenario start to its goal.
         timing_ms: [ms] stage times: rasterise, quadtree, merge, graph, plan, total.
+        refine_fallback: the map was built with ``MPCConfig.footprint_refine_fallback``
+            (the plan at ``footprint_refine`` found no path); its plans then get
+            manoeuvres when ``footprint_manoeuvre`` is set (:func:`manoeuvre_plan`).
     """
 
     scenario: Scenario
     map: SafeAreaMap
     plan: Plan
     timing_ms: dict[str, float] = field(default_factory=dict)
+    refine_fallback: bool = False
 
     @property
     def grid(self) -> OccupancyGrid:
@@ -293,9 +297,8 @@ def prepare(
     pose = scenario.start if start is None else np.asarray(start, dtype=float)
     mpc = controller.sa_mpc
     fallback = mpc.footprint_refine_fallback if mpc.footprint == "discs" else 0
-    for ctl in (controller, replace(controller, sa_mpc=replace(mpc, footprint_refine=fallback)) if fallback else None):
-        if ctl is None:
-            break
+    specs = [controller] + ([replace(controller, sa_mpc=replace(mpc, footprint_refine=fallback))] if fallback else [])
+    for ctl in specs:
         try:
             m = build_map(scenario.obstacles, scenario.bounds, inflation, map_config(ctl, resolution, merge))
         except MapMemoryError as err:  # name the file too (ScenarioError: exit 2)
@@ -312,7 +315,7 @@ def prepare(
     timing = dict(m.timing_ms)
     timing["plan"] = (time.perf_counter() - t0) * 1e3
     timing["total"] = timing.get("total", 0.0) + timing["plan"]
-    return Prepared(scenario, m, plan, timing)
+    return Prepared(scenario, m, plan, timing, refine_fallback=ctl is not controller)
 
 
 def areas_document(prep: Prepared) -> dict[str, Any]:
@@ -349,6 +352,8 @@ def replan_prepared(prep: Prepared, start: np.ndarray, spec: ControllerSpec) -> 
     plan = make_plan(planning_areas(prep.areas, prep.scenario, spec), start, prep.scenario.goal, robot,
                      planner_config(robot, spec))
     plan = footprint_route_plan(plan, prep.areas, prep.grid, prep.scenario, start, spec)
+    if prep.refine_fallback and plan.ok and spec.sa_mpc.footprint_manoeuvre is not None:
+        plan = manoeuvre_plan(plan, prep.areas, prep.scenario, spec)
     timing = dict(prep.timing_ms)
     timing["plan"] = (time.perf_counter() - t0) * 1e3
-    return Prepared(prep.scenario, prep.map, plan, timing)
+    return Prepared(prep.scenario, prep.map, plan, timing, prep.refine_fallback)
