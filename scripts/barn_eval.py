@@ -149,6 +149,10 @@ def cmd_closed_loop(args) -> int:
                                    ("footprint_grow", args.grow), ("footprint_grow_tighten", args.grow_tighten),
                                    ("footprint_route", args.route), ("footprint_box_margin", args.box_margin))
                  if v is not None}
+        if args.refine_fallback is not None:
+            given["footprint_refine_fallback"] = args.refine_fallback
+        if args.no_manoeuvre:  # no manoeuvres where the corridor reference leaves the safe areas
+            given["footprint_manoeuvre"] = None
         if args.no_tighten:  # the prediction derating without the tightening of the disc rows
             from sanav_mj.control.prediction import PredictionDerating
 
@@ -157,6 +161,8 @@ def cmd_closed_loop(args) -> int:
         mpc = spec.sa_mpc
         args.discs, args.margin, args.refine, args.grow = (mpc.footprint_discs, mpc.footprint_margin,
                                                            mpc.footprint_refine, mpc.footprint_grow)
+        args.refine_fallback = mpc.footprint_refine_fallback
+        args.no_manoeuvre = mpc.footprint_manoeuvre is None
         if args.sensing == "lidar":  # the sensed map is one grid (lidar_spec)
             args.refine = lidar_spec(spec).sa_mpc.footprint_refine
     else:
@@ -205,7 +211,7 @@ def cmd_closed_loop(args) -> int:
     args.out.write_text(json.dumps(rows, indent=1))
     ok = [r for r in rows if r["success"]]
     clr = [r["min_clearance_m"] for r in rows if r["min_clearance_m"] is not None]
-    print(f"sensing {args.sensing}, footprint {args.footprint}, discs {args.discs}, refine {args.refine}, grow {args.grow}/{args.grow_tighten}, margin {args.margin} m, cells {args.resolution} m, mismatch {mm}: success {len(ok)}/{len(rows)}, "
+    print(f"sensing {args.sensing}, footprint {args.footprint}, discs {args.discs}, refine {args.refine}{f' (fallback {args.refine_fallback}' + (', no manoeuvres)' if args.no_manoeuvre else ', manoeuvres)') if args.footprint == 'discs' and args.sensing == 'map' and args.refine_fallback else ''}, grow {args.grow}/{args.grow_tighten}, margin {args.margin} m, cells {args.resolution} m, mismatch {mm}: success {len(ok)}/{len(rows)}, "
           f"runs with collision {sum(r['collisions'] > 0 for r in rows)}, {dict(Counter(r['reason'] for r in rows))}, "
           f"mean time (successful) {np.mean([r['sim_time_s'] for r in ok]) if ok else float('nan'):.2f} s, "
           f"mean BARN score {np.mean([r['barn_score'] for r in rows]):.3f}, "
@@ -259,6 +265,12 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--resolution", type=float, default=0.05)
     c.add_argument("--refine", type=int, default=None,
                    help="discs mode: refine the cells by this factor where the free space is narrow")
+    c.add_argument("--refine-fallback", type=int, default=None,
+                   help="discs mode: refine the map by this factor where the plan finds no path "
+                        "(MPCConfig.footprint_refine_fallback)")
+    c.add_argument("--no-manoeuvre", action="store_true",
+                   help="discs mode: no manoeuvres where the fallback map's corridor reference leaves the "
+                        "safe areas (MPCConfig.footprint_manoeuvre None)")
     c.add_argument("--refine-width", type=float, default=None, help="[m] discs mode, --refine > 1: narrow below this")
     c.add_argument("--grow", type=float, default=None,
                    help="[m] discs mode: grow the corridor chain's boxes to maximal free rectangles, at most this per side")

@@ -17,6 +17,7 @@ import numpy as np
 
 from sanav_mj.control.adaptation import AdaptationConfig
 from sanav_mj.control.prediction import PredictionDerating
+from sanav_mj.planning.manoeuvre import ManoeuvreConfig
 from sanav_mj.control.backends import BACKENDS
 from sanav_mj.control.solver import SolverSettings
 from sanav_mj.scene import RobotParams
@@ -319,6 +320,14 @@ class MPCConfig(TrackingConfig):
             19 / 25, 0.366; none: 20 / 25, 0.359.
         footprint_open_room: [m] that room (the half-side of a free square of cells around
             the node, in the map inflated by the disc radius and margin).
+        footprint_manoeuvre: ``"discs"`` mode with a known map: None (off) or the settings of
+            the manoeuvres that replace each stretch of the corridor reference whose disc
+            centres leave the safe areas, on a map built with ``footprint_refine_fallback``
+            (:func:`sanav_mj.eval.prepare.manoeuvre_plan`, :mod:`sanav_mj.planning.manoeuvre`;
+            the plan is then followed as a pose route). Unused in ``"disc"`` mode.
+        footprint_refine_fallback: ``"discs"`` mode with a known map: 0 (off) or a
+            ``footprint_refine`` the map is built again with when the plan at
+            ``footprint_refine`` finds no path (:func:`sanav_mj.eval.prepare.prepare`).
     """
 
     q_sa: tuple[float, ...] = (5.0, 5.0)
@@ -338,6 +347,8 @@ class MPCConfig(TrackingConfig):
     footprint_prediction: PredictionDerating | None = PredictionDerating()
     footprint_open_speed: float | None = 1.0
     footprint_open_room: float = 0.15
+    footprint_manoeuvre: ManoeuvreConfig | None = ManoeuvreConfig()
+    footprint_refine_fallback: int = 4
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -374,6 +385,12 @@ class MPCConfig(TrackingConfig):
             raise ValueError(f"MPCConfig.footprint_open_speed must be None or a fraction in (0, 1], got {fo!r}")
         _metres("footprint_open_room", self.footprint_open_room, 0.0, 5.0)
         _metres("footprint_grow", self.footprint_grow, 0.0, 10.0, closed=True)
+        if self.footprint_manoeuvre is not None and not isinstance(self.footprint_manoeuvre, ManoeuvreConfig):
+            raise ValueError(f"MPCConfig.footprint_manoeuvre must be a ManoeuvreConfig or None, "
+                             f"got {self.footprint_manoeuvre!r}")
+        fb = self.footprint_refine_fallback
+        if isinstance(fb, bool) or not (isinstance(fb, int) and 0 <= fb <= 16):
+            raise ValueError(f"MPCConfig.footprint_refine_fallback must be an integer in [0, 16], got {fb!r}")
 
     @property
     def stage_box_margin(self) -> float:

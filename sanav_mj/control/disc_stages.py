@@ -43,7 +43,7 @@ from sanav_mj.control.stages import (
     tighten_relax,
 )
 
-def member_chain_of(areas, members: np.ndarray, margin: float) -> CorridorChain:
+def member_chain_of(areas, members: np.ndarray, margin: float, grow: float = 0.0) -> CorridorChain:
     """The :class:`CorridorChain` of a pose route's per-disc member sequence (``Plan.disc_corridors``).
 
     Args:
@@ -51,6 +51,8 @@ def member_chain_of(areas, members: np.ndarray, margin: float) -> CorridorChain:
         members: (L,) int indices into :func:`sanav_mj.planning.pose_search.member_boxes`
             (area ``r`` for ``r < R``, else the bridge across edge ``r - R``).
         margin: [m] each stay / advance box is shrunk by this (``box_margin``).
+        grow: [m] > 0: the members grown to maximal free rectangles, at most this per side
+            (``member_boxes(..., grow=grow)``, a plan whose ``info["grown_members"]`` is set).
 
     Raises:
         ValueError: an index out of range, or consecutive members that do not overlap with
@@ -60,7 +62,7 @@ def member_chain_of(areas, members: np.ndarray, margin: float) -> CorridorChain:
 
     from sanav_mj.control.stages import box_intersection, shrink_box
 
-    allb = member_boxes(areas, 0.0)
+    allb = member_boxes(areas, 0.0, grow=grow)
     m = np.asarray(members, dtype=int).ravel()
     if m.size == 0 or m.min() < 0 or m.max() >= len(allb):
         raise ValueError(f"disc_corridors: expected member indices in [0, {len(allb)}), got {m.tolist()}")

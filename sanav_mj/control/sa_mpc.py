@@ -310,7 +310,8 @@ def _pose_route_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: floa
     None) for other plans (the horizon never holds; one chain for all discs)."""
     st, dc = plan.reference.stops, getattr(plan, "disc_corridors", None)
     stops = None if st is None else np.unique(np.rint(np.asarray(st, float) * plan.reference.dt / dt).astype(int))
-    return stops, (None if dc is None else [member_chain_of(areas, c, box_margin) for c in dc])
+    grow = float(plan.info.get("grown_members", 0.0))
+    return stops, (None if dc is None else [member_chain_of(areas, c, box_margin, grow) for c in dc])
 
 
 def _nearest_sample(ref_states: np.ndarray, lo: int, hi: int, pos: np.ndarray, sweep: float | None,

@@ -199,7 +199,8 @@ def run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, resol
         # a Prepared of a refined discs map has cells of resolution / footprint_refine
         # (map_config): its base cells, divided again by lidar_controller (lidar_cell)
         mpc = cspec.sa_mpc
-        refine = mpc.footprint_refine if mpc.footprint == "discs" and mpc.footprint_refine > 1 else 1
+        fine = mpc.footprint_refine_fallback if source.refine_fallback else mpc.footprint_refine  # see prepare()
+        refine = fine if mpc.footprint == "discs" and fine > 1 else 1
         scenario, resolution = source.scenario, source.grid.resolution * refine
     else:
         scenario = source if isinstance(source, Scenario) else load_scenario(source)

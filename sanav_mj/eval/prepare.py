@@ -11,7 +11,7 @@ the same way.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -38,12 +38,16 @@ class Prepared:
             parts are also reachable as ``grid``, ``leaves`` and ``areas``.
         plan: planned corridor and reference from the scenario start to its goal.
         timing_ms: [ms] stage times: rasterise, quadtree, merge, graph, plan, total.
+        refine_fallback: the map was built with ``MPCConfig.footprint_refine_fallback``
+            (the plan at ``footprint_refine`` found no path); its plans then get
+            manoeuvres when ``footprint_manoeuvre`` is set (:func:`manoeuvre_plan`).
     """
 
     scenario: Scenario
     map: SafeAreaMap
     plan: Plan
     timing_ms: dict[str, float] = field(default_factory=dict)
+    refine_fallback: bool = False
 
     @property
     def grid(self) -> OccupancyGrid:
@@ -235,6 +239,40 @@ def footprint_route_plan(plan: Plan, areas: SafeAreas, grid: OccupancyGrid, scen
     return new
 
 
+def manoeuvre_plan(plan: Plan, areas: SafeAreas, scenario: Scenario, spec: ControllerSpec) -> Plan:
+    """``plan`` with each stretch of its reference whose disc centres leave the safe areas
+    replaced by a manoeuvre (:func:`sanav_mj.planning.manoeuvre.manoeuvre_route`, settings
+    ``MPCConfig.footprint_manoeuvre``) and followed as a pose route
+    (:func:`sanav_mj.planning.pose_reference.route_plan`, one chain per disc, held at its
+    cusps and turns on the spot); ``plan`` itself when no stretch needs one, a stretch has
+    none, or the route's chains do not cover its discs (``info["manoeuvre"]`` says which)."""
+    from sanav_mj.footprint import robot_footprint
+    from sanav_mj.planning.manoeuvre import manoeuvre_route
+    from sanav_mj.planning.pose_reference import route_plan
+    from sanav_mj.planning.pose_search import PoseRoute, member_boxes
+
+    mpc = spec.sa_mpc
+    offsets, _ = robot_footprint(scenario.model).discs(mpc.footprint_discs)
+    t0 = time.perf_counter()
+    cfg = mpc.footprint_manoeuvre
+    found = manoeuvre_route(member_boxes(areas, 0.0, grow=cfg.grow), plan.reference.states, offsets, cfg)
+    ms = (time.perf_counter() - t0) * 1e3
+    if found is None or found[2] == 0:
+        why = "no manoeuvre" if found is None else "none needed"
+        return replace(plan, info=dict(plan.info, manoeuvre=why, manoeuvre_ms=ms))
+    poses, kinds, n = found
+    pc = planner_config(scenario.robot, spec)
+    lim = mpc.limits(scenario.robot)
+    new, why = route_plan(areas, PoseRoute(poses, kinds, 0.0, 0, 0, ms), plan.goal, offsets, pc.dt,
+                          pc.speed_fraction * scenario.robot.v_max, pc.speed_fraction * abs(lim.v_min),
+                          pc.yaw_rate_fraction * scenario.robot.w_max, pc.accel_fraction * scenario.robot.a_max,
+                          pc.yaw_rate_fraction * lim.alpha_max, pc.lateral_accel, info=dict(plan.info),
+                          margin=mpc.stage_box_margin, hold_at_stops=True, grow_members=cfg.grow)
+    if new is None:
+        return replace(plan, info=dict(plan.info, manoeuvre=why, manoeuvre_ms=ms))
+    return replace(new, info=dict(new.info, manoeuvre=f"{n} stretches", manoeuvre_ms=ms))
+
+
 def prepare(
     spec: str | Path | Scenario,
     resolution: float = 0.05,
@@ -256,20 +294,28 @@ def prepare(
 
     scenario = spec if isinstance(spec, Scenario) else load_scenario(spec)
     inflation = map_inflation(scenario, controller)
-    try:
-        m = build_map(scenario.obstacles, scenario.bounds, inflation, map_config(controller, resolution, merge))
-    except MapMemoryError as err:  # name the file too (ScenarioError: exit 2)
-        raise MapMemoryError(f"{scenario.path}: {err}") from None
-    m = with_free_cells(m, controller)
-    t0 = time.perf_counter()
     pose = scenario.start if start is None else np.asarray(start, dtype=float)
-    plan = make_plan(planning_areas(m.areas, scenario, controller), pose, scenario.goal, scenario.robot,
-                     planner_config(scenario.robot, controller))
-    plan = footprint_route_plan(plan, m.areas, m.grid, scenario, pose, controller)
+    mpc = controller.sa_mpc
+    fallback = mpc.footprint_refine_fallback if mpc.footprint == "discs" else 0
+    specs = [controller] + ([replace(controller, sa_mpc=replace(mpc, footprint_refine=fallback))] if fallback else [])
+    for ctl in specs:
+        try:
+            m = build_map(scenario.obstacles, scenario.bounds, inflation, map_config(ctl, resolution, merge))
+        except MapMemoryError as err:  # name the file too (ScenarioError: exit 2)
+            raise MapMemoryError(f"{scenario.path}: {err}") from None
+        m = with_free_cells(m, ctl)
+        t0 = time.perf_counter()
+        plan = make_plan(planning_areas(m.areas, scenario, ctl), pose, scenario.goal, scenario.robot,
+                         planner_config(scenario.robot, ctl))
+        plan = footprint_route_plan(plan, m.areas, m.grid, scenario, pose, ctl)
+        if plan.ok or plan.reason != "no_path":  # footprint_refine_fallback: only where no path
+            break
+    if ctl is not controller and plan.ok and mpc.footprint_manoeuvre is not None:
+        plan = manoeuvre_plan(plan, m.areas, scenario, ctl)
     timing = dict(m.timing_ms)
     timing["plan"] = (time.perf_counter() - t0) * 1e3
     timing["total"] = timing.get("total", 0.0) + timing["plan"]
-    return Prepared(scenario, m, plan, timing)
+    return Prepared(scenario, m, plan, timing, refine_fallback=ctl is not controller)
 
 
 def areas_document(prep: Prepared) -> dict[str, Any]:
@@ -306,6 +352,8 @@ def replan_prepared(prep: Prepared, start: np.ndarray, spec: ControllerSpec) -> 
     plan = make_plan(planning_areas(prep.areas, prep.scenario, spec), start, prep.scenario.goal, robot,
                      planner_config(robot, spec))
     plan = footprint_route_plan(plan, prep.areas, prep.grid, prep.scenario, start, spec)
+    if prep.refine_fallback and plan.ok and spec.sa_mpc.footprint_manoeuvre is not None:
+        plan = manoeuvre_plan(plan, prep.areas, prep.scenario, spec)
     timing = dict(prep.timing_ms)
     timing["plan"] = (time.perf_counter() - t0) * 1e3
-    return Prepared(prep.scenario, prep.map, plan, timing)
+    return Prepared(prep.scenario, prep.map, plan, timing, prep.refine_fallback)

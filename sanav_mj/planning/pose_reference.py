@@ -364,11 +364,27 @@ def member_chain(members: np.ndarray, points: np.ndarray, margin: float, tol: fl
     return np.array(out, dtype=np.int64)
 
 
+def _loose_walk(rects: np.ndarray, corridor: np.ndarray, points: np.ndarray, tol: float = 0.01) -> np.ndarray:
+    """(P,) int monotone corridor positions of ``points`` (P, 2) [m]: each point's first
+    corridor area at or after the previous point's that holds it grown by ``tol`` [m], else
+    the previous one (the labels of a reference's samples, ``Reference.area``)."""
+    r = np.asarray(rects, dtype=float)[np.asarray(corridor, dtype=int)]
+    inside = ((r[None, :, 0] - tol <= points[:, None, 0]) & (points[:, None, 0] <= r[None, :, 2] + tol)
+              & (r[None, :, 1] - tol <= points[:, None, 1]) & (points[:, None, 1] <= r[None, :, 3] + tol))
+    out, j = np.zeros(len(points), dtype=np.int64), 0
+    for i in range(len(points)):
+        hit = np.flatnonzero(inside[i, j:])
+        if hit.size:
+            j += int(hit[0])
+        out[i] = j
+    return out
+
+
 def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np.ndarray, dt: float,
                v_cap: float, v_rev_cap: float, w_cap: float, a_cap: float, alpha_cap: float,
                a_lat: float, info: dict[str, Any] | None = None,
                raster: PointRaster | None = None, margin: float = 0.02, slow_clearance: float = 0.0,
-               slow_floor: float = 0.3, hold_at_stops: bool = False) -> tuple[Plan | None, str]:
+               slow_floor: float = 0.3, hold_at_stops: bool = False, grow_members: float = 0.0) -> tuple[Plan | None, str]:
     """A :class:`Plan` following a pose route, or ``(None, why)`` when its corridor does not
     cover every disc centre monotonically (see the module docstring).
 
@@ -393,6 +409,10 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
             robot arrives. Off by default: measured on the 100 worlds 72 / 100 (BARN 0.339)
             against 73 / 100 (0.342) without (barn_0086 stalls with it; barn_0052 succeeds
             only with it and the slow-down together).
+        grow_members: [m] > 0: the per-disc chains' members grown to maximal free
+            rectangles, at most this per side
+            (:func:`~sanav_mj.planning.pose_search.member_boxes` with ``grow``; the plan's
+            ``info["grown_members"]`` tells SA-MPC to build its chains the same way).
         raster: the free set the route was searched on; given, the route is smoothed
             (:func:`smooth_route`) and the smoothed one used when every dense pose of it
             is free (``info["pose_smoothed"]``).
@@ -415,7 +435,7 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
                 P[lo:hi] = route.poses[lo:hi]
             sm = PoseRoute(P, sm.kinds, sm.cost, sm.nodes, sm.edges, sm.time_ms)
     rects = np.asarray(areas.rects, dtype=float)
-    boxes = member_boxes(areas, 0.0)
+    boxes = member_boxes(areas, 0.0, grow=grow_members)
 
     def disc_chains(dense: np.ndarray) -> tuple[list[np.ndarray] | None, str]:
         discs = disc_points(dense[:, 0], dense[:, 1], dense[:, 2], offsets)
@@ -446,6 +466,8 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
     times = time_poses(dense, kinds, v_cap, v_rev_cap, w_cap, a_cap, alpha_cap, a_lat, v_scale)
     states, inputs = sample_reference(dense, times, dt)
     pos = chain_walk(rects, corridor, disc_points(states[:, 0], states[:, 1], states[:, 2], offsets)[:, c])
+    if pos is None and grow_members > 0:  # grown members: the centre may cut a corner of the plain areas
+        pos = _loose_walk(rects, corridor, disc_points(states[:, 0], states[:, 1], states[:, 2], offsets)[:, c])
     if pos is None:  # the samples are points of the dense path; guard
         return None, "reference samples not covered by the corridor"
     stops = None
@@ -455,6 +477,8 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
     ref = Reference(dt=dt, states=states, inputs=inputs, area=corridor[pos], stops=stops)
     path_len = float(np.hypot(*np.diff(dense[:, :2], axis=0).T).sum())
     inf = dict(info or {})
+    if grow_members > 0:
+        inf["grown_members"] = float(grow_members)
     inf.update(pose_route=True, pose_smoothed=smoothed, corridor_areas=int(corridor.size), path_length_m=path_len,
                duration_s=float(times[-1]), pose_search_ms=route.time_ms, pose_nodes=route.nodes,
                pose_reverse_m=float(sum(np.hypot(*(b[:2] - a[:2])) for a, b, k in

@@ -177,12 +177,16 @@ class PointRaster:
         return np.where(inb, self.clearance[iy, ix], 0.0)
 
 
-def member_boxes(areas, margin: float) -> np.ndarray:
+def member_boxes(areas, margin: float, grow: float = 0.0) -> np.ndarray:
     """(R + E, 4) [m] the safe areas and the bridge boxes across their portals, each shrunk
     by ``margin`` [m] per side (at most a quarter of its width), as SA-MPC's corridor chain
     builds them (:class:`sanav_mj.control.stages.CorridorChain`): a bridge across the portal
     ``x = c, y in [y0, y1]`` of areas a, b is ``[min(xmin), max(xmax)] x [y0, y1]`` (inside
-    a ∪ b), and likewise for a horizontal portal."""
+    a ∪ b), and likewise for a horizontal portal. With ``grow`` > 0 [m] and ``areas.free``
+    set (:class:`~sanav_mj.mapping.grow.FreeCells`), every box is first grown to a maximal
+    free rectangle of the grid, at most ``grow`` per side
+    (:func:`~sanav_mj.mapping.grow.grow_rect`, as the corridor chain grows its members: only
+    free cells, as safe as a safe area)."""
     rects = np.asarray(areas.rects, dtype=float).reshape(-1, 4)
     boxes = [rects]
     edges = np.asarray(areas.edges, dtype=int).reshape(-1, 2)
@@ -198,6 +202,11 @@ def member_boxes(areas, margin: float) -> np.ndarray:
         br[:, 3] = np.where(vertical, hi[:, 1], np.maximum(a[:, 3], b[:, 3]))
         boxes.append(br)
     out = np.vstack(boxes)
+    free = getattr(areas, "free", None)
+    if grow > 0 and free is not None:
+        from sanav_mj.mapping.grow import grow_rect
+
+        out = np.array([grow_rect(free, b, limit=grow) for b in out]).reshape(-1, 4)
     w = out[:, 2:] - out[:, :2]
     m = np.minimum(margin, 0.25 * np.maximum(w, 0.0))
     return np.concatenate((out[:, :2] + m, out[:, 2:] - m), axis=1)
