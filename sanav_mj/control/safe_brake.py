@@ -5,9 +5,10 @@ The braking fallback of the lidar ``"discs"`` mode
 (:class:`~sanav_mj.control.sensed_footprint.StraightBrakeSAMPC`) then rolls a few candidate
 input sequences out from the current state (each within the input and rate bounds and
 ending at rest) and takes the first, in a fixed order of preference, whose every predicted
-disc centre (stages 1..N) lies in the current safe areas; when none does, the one whose
-worst centre lies least far outside. :func:`choose_brake` is that choice, :func:`rect_slack`
-its measure.
+disc centre (stages 1..N) lies in the current safe areas; when none does, a fixed one (the
+straight stop there: choosing the candidate whose worst centre lies least far outside turned
+the robot hard at speed, and its corners came within 6 mm of a cylinder, barn_0060 seed 3,
+2026-11-25). :func:`choose_brake` is that choice, :func:`rect_slack` its measure.
 """
 
 from __future__ import annotations
@@ -59,8 +60,9 @@ class BrakeChoice:
 
 
 def choose_brake(x0: np.ndarray, candidates: list[tuple[str, np.ndarray]], offsets: np.ndarray,
-                 rects: np.ndarray, dt: float, tol: float, gains: np.ndarray | None = None) -> BrakeChoice:
-    """The first candidate whose predicted points stay inside ``rects``, else the least outside.
+                 rects: np.ndarray, dt: float, tol: float, gains: np.ndarray | None = None,
+                 otherwise: int | None = 0) -> BrakeChoice:
+    """The first candidate whose predicted points stay inside ``rects``, else ``otherwise``.
 
     Args:
         x0: (3,) [m, m, rad] the current state (finite).
@@ -73,9 +75,11 @@ def choose_brake(x0: np.ndarray, candidates: list[tuple[str, np.ndarray]], offse
             acceptance tolerance of a solve).
         gains: (2,) input gains the candidates are rolled out with (what the plant does with
             a command), or None (the model's).
+        otherwise: index of the candidate taken when none is inside; None: the one whose
+            worst point lies least far outside (ties to the earlier one).
 
     Returns:
-        the :class:`BrakeChoice`; ties among the candidates outside go to the earlier one.
+        the :class:`BrakeChoice`.
     """
     if not candidates:
         raise ValueError("candidates: expected at least one (name, inputs) pair, got none")
@@ -89,6 +93,13 @@ def choose_brake(x0: np.ndarray, candidates: list[tuple[str, np.ndarray]], offse
         py = xs[:, 1:2] + o[:, 0] * s + o[:, 1] * c
         scores.append(float(rect_slack(np.column_stack((px.ravel(), py.ravel())), rects).min()))
     inside = [i for i, v in enumerate(scores) if v >= -tol]
-    best = inside[0] if inside else int(np.argmax(scores))
+    if inside:
+        best = inside[0]
+    elif otherwise is None:
+        best = int(np.argmax(scores))
+    else:
+        if not 0 <= otherwise < len(candidates):
+            raise ValueError(f"otherwise: expected a candidate index in [0, {len(candidates)}), got {otherwise!r}")
+        best = int(otherwise)
     name, u = candidates[best]
     return BrakeChoice(name, u, scores[best], bool(inside), tuple(scores))

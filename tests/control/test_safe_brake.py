@@ -58,10 +58,15 @@ def test_choose_brake_takes_the_first_candidate_inside_else_the_least_outside():
     # straight first when it fits (a longer box)
     long = choose_brake(x0, [("straight", straight), ("turn", turn)], OFFSETS, BOX + [0, 0, 0.1, 0], 0.1, 1e-9)
     assert long.name == "straight" and long.inside
-    # nothing fits (a box 0.3 m long): the least outside, flagged
+    # nothing fits (a box 0.3 m long): the first candidate (otherwise=0), flagged; or, asked
+    # for, the least outside
     short = BOX - [0, 0, 0.07, 0]
     none = choose_brake(x0, [("straight", straight), ("turn", turn)], OFFSETS, short, 0.1, 1e-9)
-    assert not none.inside and none.name == "turn" and none.slack == max(none.scores) < 0
+    assert not none.inside and none.name == "straight" and none.slack == none.scores[0] < max(none.scores) < 0
+    least = choose_brake(x0, [("straight", straight), ("turn", turn)], OFFSETS, short, 0.1, 1e-9, otherwise=None)
+    assert not least.inside and least.name == "turn" and least.slack == max(least.scores)
+    with pytest.raises(ValueError, match="otherwise"):
+        choose_brake(x0, [("straight", straight)], OFFSETS, short, 0.1, 1e-9, otherwise=1)
     # within the tolerance counts as inside
     tol = choose_brake(x0, [("straight", straight)], OFFSETS, BOX, 0.1, 0.022)
     assert tol.inside and tol.name == "straight"
@@ -119,6 +124,11 @@ def test_lidar_brake_steers_without_a_plan_and_brakes_straight_when_it_fits(brak
     turn = brake_inputs(np.array([0.9, 0.0]), RATE, 20, 2.0)
     ctl = _at(brake_mpc, [0.9, 0.0], ActivePlan(np.vstack(([0.9, 0.0], turn[:-1])), 1))
     assert ctl.kept_inputs(_prob(ctl, ub=0.5)) is None and ctl.kept_inputs(None) is None
+    # nor one whose increments exceed this step's rate bounds (the traction limit lowered a_max)
+    assert ctl.kept_inputs(_prob(ctl)) is not None
+    ctl._set_accel(1.0)
+    assert ctl.kept_inputs(_prob(ctl)) is None
+    ctl._set_accel(ctl.limits.a_max)
     assert ctl.brake_plan(np.zeros(3), _prob(ctl, ub=0.5)) is ctl.last_brake.u
     assert ctl.last_brake.name == "steer"
     # room for the straight stop: straight, as before
@@ -127,11 +137,11 @@ def test_lidar_brake_steers_without_a_plan_and_brakes_straight_when_it_fits(brak
     assert ctl.stats.counts == {"brake_straight": 1}
 
 
-def test_lidar_brake_counts_when_nothing_stays_inside_and_brakes_straight_without_areas(brake_mpc):
+def test_lidar_brake_brakes_straight_when_nothing_stays_inside_or_without_areas(brake_mpc):
     ctl = _at(brake_mpc, [0.9, 0.0], free=BOX - [0, 0, 0.07, 0])  # 0.3 m: no stop from 0.9 m/s fits
     u = ctl.brake_plan(np.zeros(3), _prob(ctl))
-    assert not ctl.last_brake.inside and ctl.stats.counts["brake_outside"] == 1
-    assert ctl.last_brake.slack == max(ctl.last_brake.scores) and u is ctl.last_brake.u
+    assert not ctl.last_brake.inside and ctl.stats.counts == {"brake_straight": 1, "brake_outside": 1}
+    np.testing.assert_array_equal(u, ctl.straight_inputs())  # straight, as before the check
     # without the current safe areas (no sensing loop): the straight brake, unchecked
     ctl = _at(brake_mpc, [0.9, 0.0], free=None)
     np.testing.assert_array_equal(ctl.brake_plan(np.zeros(3), _prob(ctl)), ctl.straight_inputs())
