@@ -110,7 +110,7 @@ class StraightBrakeSAMPC(SAMPC):
        braking plan), then braking at the rate bounds (the warm start,
        :func:`~sanav_mj.control.problem.shift_inputs`), rolled out from the current state;
        only when it is within this step's input bounds (with the derating when
-       ``fallback_derated``). An accepted plan ended at rest with its disc centres in
+       ``fallback_derated``) and rate bounds (:meth:`kept_inputs`). An accepted plan ended at rest with its disc centres in
        observed-free boxes; the check against the *current* safe areas is what keeps that
        true when a scan has since removed free cells;
     3. ``steer``: the speed to zero at its rate bound while the yaw rate ramps towards
@@ -120,10 +120,12 @@ class StraightBrakeSAMPC(SAMPC):
     counts ``brake_outside``; the chosen candidate's name is counted as ``brake_<name>``):
     taking the candidate whose worst centre lies least far outside instead turned the robot
     at up to 1.6 rad/s where no stop fitted and brought its corner within 6 mm of a cylinder
-    (barn_0060 seed 3; braking straight there: 0.076 m). Each chosen plan becomes the plan followed, so the next braking step
-    has its rest as its ``kept`` candidate: once a manoeuvre inside the safe areas is found,
-    its continuation stays inside as long as the robot moves as predicted and those areas
-    keep the cells it passes. Without :attr:`free_areas` the robot brakes straight.
+    (barn_0060 seed 3; braking straight there: 0.076 m). Each chosen plan becomes the plan
+    followed, so the next braking step has its rest as its ``kept`` candidate: once a
+    manoeuvre inside the safe areas is found, its continuation stays inside as long as the
+    robot moves as predicted and those areas keep the cells it passes (up to the last padded
+    step, which may still turn on the spot; docs/sensing.md states what is guaranteed).
+    Without :attr:`free_areas` the robot brakes straight.
 
     Why not steer to the side deepest in the corridor (:meth:`SAMPC.brake_plan`): the
     robot brakes mostly after a scan made a corridor rectangle unsafe at speed, or after a

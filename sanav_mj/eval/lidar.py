@@ -181,6 +181,7 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
                                       refresh=mpc.footprint == "discs", straight_brake=mpc.footprint == "discs",
                                       grow=mpc.footprint_grow if mpc.footprint == "discs" else 0.0))
 
+
 def outside_safe_areas(ctrl, pose: np.ndarray) -> int:
     """1 when a constrained point of the robot at the true ``pose`` (3,) [m, m, rad] lies
     outside every current safe area of the sensing controller ``ctrl`` (the areas its map
