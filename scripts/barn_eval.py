@@ -17,7 +17,9 @@
         (the tracking excursion the margin has to absorb) and the solve times. With
         ``--sensing lidar`` the robot maps with its own lidar (docs/sensing.md); per run also
         the replans, the map update and pipeline times and the safe-area violation steps
-        (the excursion is then not computed: the safe areas change from step to step).
+        (the excursion is then not computed: the safe areas change from step to step), and
+        the braking fallback's choices (``fallback_*``, ``brake_*`` step counts of the
+        controller's stats). Every run: ``solver_failures``.
 
 One process; prints a markdown summary, writes CSV.
 """
