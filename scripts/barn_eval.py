@@ -17,7 +17,9 @@
         (the tracking excursion the margin has to absorb) and the solve times. With
         ``--sensing lidar`` the robot maps with its own lidar (docs/sensing.md); per run also
         the replans, the map update and pipeline times and the safe-area violation steps
-        (the excursion is then not computed: the safe areas change from step to step).
+        (the excursion is then not computed: the safe areas change from step to step), and
+        the braking fallback's choices (``fallback_*``, ``brake_*`` step counts of the
+        controller's stats). Every run: ``solver_failures``.
 
 One process; prints a markdown summary, writes CSV.
 """
@@ -199,6 +201,11 @@ def cmd_closed_loop(args) -> int:
                      "solve_mean_ms": d["solve_ms"]["mean"], "solve_p99_ms": d["solve_ms"]["p99"],
                      "steps": d["steps"], "safe_area_violations": d["safe_area_violations"],
                      "barn_score": barn_score(d["success"], d["sim_time_s"], to) if math.isfinite(to) else math.nan})
+        rows[-1]["solver_failures"] = d["solver_failures"]
+        mpc = getattr(out.sensed, "mpc", None)
+        if mpc is not None:  # the braking fallback's choices (sensed_footprint.StraightBrakeSAMPC)
+            rows[-1].update({k: mpc.stats.counts.get(k, 0) for k in (
+                "fallback_shift", "fallback_stop", "brake_straight", "brake_kept", "brake_steer", "brake_outside")})
         if lidar:
             rows[-1].update(replans=d["replans"], map_update_mean_ms=d["map_update_ms"]["mean"],
                             map_update_p99_ms=d["map_update_ms"]["p99"], pipeline_mean_ms=d["pipeline_ms"]["mean"],
@@ -223,6 +230,9 @@ def cmd_closed_loop(args) -> int:
               f"{np.nanmedian([r['map_update_p99_ms'] for r in rows]):.2f} ms, pipeline mean of run means "
               f"{np.nanmean([r['pipeline_mean_ms'] for r in rows]):.2f} ms, safe-area violation steps "
               f"{sum(r['safe_area_violations'] for r in rows)} in {sum(r['safe_area_violations'] > 0 for r in rows)} runs")
+        if all("fallback_stop" in r for r in rows):
+            print("fallback steps: " + ", ".join(f"{k} {sum(r[k] for r in rows)}" for k in (
+                "fallback_shift", "fallback_stop", "brake_straight", "brake_kept", "brake_steer", "brake_outside")))
     ran = [r for r in rows if r["steps"] > 0]
     if ran:
         w = np.array([r["steps"] for r in ran], float)

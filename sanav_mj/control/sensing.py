@@ -342,6 +342,8 @@ class SensingSAMPC:
         if self.mpc is not None:
             self.mpc.reset(np.asarray(pose, dtype=float).reshape(3))
             self._mpc_fresh = True
+            if isinstance(self.mpc, StraightBrakeSAMPC):
+                self.mpc.free_areas = self.map.areas_now  # the new episode's map
 
     @property
     def areas(self) -> SafeAreas | None:
@@ -607,6 +609,8 @@ class SensingSAMPC:
         else:
             self.mpc.replace_plan(areas, plan)
         self._mpc_fresh = False
+        if isinstance(self.mpc, StraightBrakeSAMPC):
+            self.mpc.free_areas = self.map.areas_now  # what its braking fallback stays inside
         self._plain_rects = np.asarray(areas.rects, dtype=float)[np.asarray(plan.corridor, int)]
         # with growth, the grown chain members too: checked at every scan (``blocked``)
         self._corridor_rects = self._plain_rects if areas.free is None else \

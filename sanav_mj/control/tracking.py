@@ -161,6 +161,29 @@ def turn_profile(err: float, w0: float, a: float, w_max: float, n: int, dt: floa
     return out
 
 
+def brake_inputs(u_prev: np.ndarray, rate_step: np.ndarray, n: int, target: float) -> np.ndarray:
+    """(n, 2) [m/s, rad/s] one braking candidate of :meth:`TrackingMPC.brake_plan`.
+
+    The speed goes from ``u_prev[0]`` to zero at the rate bound ``rate_step[0]`` [m/s per
+    step]; the yaw rate ramps from ``u_prev[1]`` at its rate bound ``rate_step[1]`` [rad/s
+    per step] towards ``target`` [rad/s] and, from the first stage at rest, back to zero at
+    that bound. Every increment respects the rate bounds.
+    """
+    a, al = float(rate_step[0]), float(rate_step[1])
+    v0, w0 = float(u_prev[0]), float(u_prev[1])
+    k = np.arange(1, n + 1)
+    v = np.sign(v0) * np.maximum(abs(v0) - k * a, 0.0)
+    w = w0 + np.clip(target - w0, -k * al, k * al)
+    # once stopped, bring the yaw rate back to rest as well
+    stopped = np.flatnonzero(v == 0.0)
+    if stopped.size:
+        j = stopped[0]
+        w[j:] = np.sign(w[j - 1] if j > 0 else w0) * np.maximum(
+            abs(w[j - 1] if j > 0 else w0) - np.arange(1, n - j + 1) * al, 0.0
+        )
+    return np.stack((v, w), axis=1)
+
+
 def _unreachable(ctl, x0: np.ndarray, con: Constraints, prob: Problem) -> int | None:
     """The ``reach_check`` of a :class:`TrackingMPC` step: the first stage (1..N) whose box
     no plan within the input bounds reaches (:func:`unreachable_stage`; the solve could not
@@ -536,33 +559,23 @@ class TrackingMPC:
             and np.all(z >= prob.fb_lb - self._check_tol) and np.all(z <= prob.fb_ub + self._check_tol)
         )
 
-    def brake_plan(self, x0: np.ndarray) -> np.ndarray:
+    def brake_plan(self, x0: np.ndarray, prob: Problem | None = None) -> np.ndarray:
         """(N, 2) inputs braking at the rate limits, steering to the clearest side.
 
         The speed goes to zero at the rate bound from the previous input. The yaw rate ramps
         at its rate bound from the previous one towards each of 0, +-w_max / 2 and +-w_max
-        (five candidates); each candidate is rolled out from ``x0`` (3,) and scored by the
-        smallest :meth:`clearance` of its positions (saturated at 5 cm, so any candidate
-        that stays 5 cm clear counts as good); the best wins, ties going to the first (yaw
-        rate towards 0). Without a clearance the first candidate is taken.
+        (five candidates, :func:`brake_inputs`); each candidate is rolled out from ``x0``
+        (3,) and scored by the smallest :meth:`clearance` of its positions (saturated at 5
+        cm, so any candidate that stays 5 cm clear counts as good); the best wins, ties going
+        to the first (yaw rate towards 0). Without a clearance the first candidate is taken.
+        ``prob``: the step's problem when one was posed (unused here; a subclass may read
+        it, see :class:`~sanav_mj.control.sensed_footprint.StraightBrakeSAMPC`).
         """
         n = self.N
-        a, al = float(self._rate_step[0]), float(self._rate_step[1])
-        v0, w0 = float(self._u_prev[0]), float(self._u_prev[1])
-        k = np.arange(1, n + 1)
-        v = np.sign(v0) * np.maximum(abs(v0) - k * a, 0.0)
         wm, gains = self.adaptation.brake_response(self.limits.w_max)
         best, best_score = None, -np.inf
         for target in (0.0, 0.5 * wm, -0.5 * wm, wm, -wm):
-            w = w0 + np.clip(target - w0, -k * al, k * al)
-            # once stopped, bring the yaw rate back to rest as well
-            stopped = np.flatnonzero(v == 0.0)
-            if stopped.size:
-                j = stopped[0]
-                w[j:] = np.sign(w[j - 1] if j > 0 else w0) * np.maximum(
-                    abs(w[j - 1] if j > 0 else w0) - np.arange(1, n - j + 1) * al, 0.0
-                )
-            u = np.stack((v, w), axis=1)
+            u = brake_inputs(self._u_prev, self._rate_step, n, target)
             if not np.all(np.isfinite(x0)):
                 return u
             xs = rollout_np(x0, u if gains is None else u * gains, self.dt)
@@ -592,7 +605,7 @@ class TrackingMPC:
                 rest = a.u[a.next - 1 :]
         if rest is None:
             if self.config.fallback_brake:
-                plan = self.brake_plan(x0)
+                plan = self.brake_plan(x0, prob)
                 u = plan[0].copy()
                 self._active = ActivePlan(plan, 1, brake=True)
                 rest = plan

@@ -32,6 +32,17 @@ SENSING_MODES = ("map", "lidar")
 ROUTE_FOLLOWERS = ("sa-mpc",)
 
 
+def constrained_points(scenario: Scenario, cspec: ControllerSpec) -> np.ndarray | None:
+    """(P, 2) [m] the body-frame points SA-MPC's hard constraints hold in the safe areas in
+    its ``"discs"`` mode (the disc centres of the robot's cover), counted by the run JSON's
+    ``safe_area_violations``; None otherwise (the position alone)."""
+    if cspec.name != "sa-mpc" or cspec.sa_mpc.footprint != "discs":
+        return None
+    from sanav_mj.footprint import robot_footprint
+
+    return robot_footprint(scenario.model).discs(cspec.sa_mpc.footprint_discs)[0]
+
+
 def planned_route(plan: Plan, goal: np.ndarray) -> np.ndarray | None:
     """The route (P, 2) [m] a plan defines for the ``stuck`` rule: the reference positions,
     ended by the scenario goal (2,) [m] when the plan projected it; None without a plan."""
@@ -159,6 +170,7 @@ def run_scenario(
         rects=prep.areas.rects,
         mismatch=mismatch.changed(),
         setup_ms=setup_ms,
+        points=constrained_points(scenario, cspec),
     )
     doc.update(footprint_fields(cspec))
     if recorder is not None:

@@ -181,6 +181,25 @@ def lidar_controller(scenario: Scenario, cspec: ControllerSpec = ControllerSpec(
                                       refresh=mpc.footprint == "discs", straight_brake=mpc.footprint == "discs",
                                       grow=mpc.footprint_grow if mpc.footprint == "discs" else 0.0))
 
+
+def outside_safe_areas(ctrl, pose: np.ndarray) -> int:
+    """1 when a constrained point of the robot at the true ``pose`` (3,) [m, m, rad] lies
+    outside every current safe area of the sensing controller ``ctrl`` (the areas its map
+    update of this step left), else 0: every disc centre of the cover in ``"discs"`` mode
+    (``ctrl.body.offsets``, the points the hard constraints hold in the safe areas), the
+    position in ``"disc"`` mode. 0 before the first plan (the robot turns on the spot where
+    it stands) and before the first scan. The run JSON's ``safe_area_violations`` of a
+    lidar run is the sum over its steps."""
+    from sanav_mj.eval.metrics import step_violations
+
+    if ctrl.mpc is None:
+        return 0
+    areas = ctrl.areas
+    if areas is None:
+        return 0
+    return step_violations(np.asarray(pose, dtype=float).reshape(1, 3), areas.rects, ctrl.body.offsets)
+
+
 def run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, resolution: float,
                mismatch: Mismatch, time_limit_s: float, run_config: RunConfig | None,
                controller_obj=None, on_step=None, rrd: Path | None = None, record: bool = False) -> RunOutcome:
@@ -189,7 +208,7 @@ def run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, resol
     :class:`SensingLog`)."""
     from dataclasses import replace
 
-    from sanav_mj.eval.metrics import episode_json, safe_area_violations, timing_stats
+    from sanav_mj.eval.metrics import episode_json, timing_stats
     from sanav_mj.sim.lidar import Lidar, lidar_config
     from sanav_mj.sim.mismatch import mismatched_model
     from sanav_mj.sim.plant import Plant
@@ -218,10 +237,7 @@ def run_lidar(source, cspec: ControllerSpec, seed: int, yaw: float | None, resol
     outside: list[int] = []
 
     def violations(step: int, trace) -> None:
-        # the true position of the step against the safe areas the step's map update left
-        # (before the first plan the robot turns on the spot where it stands: not counted)
-        if ctrl.mpc is not None and ctrl.areas is not None:
-            outside.append(safe_area_violations(np.asarray(trace.pose[step])[None, :2], ctrl.areas.rects))
+        outside.append(outside_safe_areas(ctrl, np.asarray(trace.pose[step])))
 
     hook = chain(chain(violations, log.hook(ctrl, lcfg.offset) if log is not None else None), on_step)
     from sanav_mj.sim.termination import ReplannedRouteProgress

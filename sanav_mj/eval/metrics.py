@@ -49,6 +49,41 @@ def safe_area_violations(xy: np.ndarray, rects: np.ndarray, tol: float = 1e-9) -
     return int(np.sum(~inside.any(axis=1)))
 
 
+def body_points(poses: np.ndarray, offsets: np.ndarray | None) -> np.ndarray:
+    """(K, P, 2) [m] world positions of the body-frame points ``offsets`` (P, 2) [m] (x
+    forward, y left) at the poses (K, 3) [m, m, rad]; ``offsets`` None: the positions
+    themselves (K, 1, 2)."""
+    poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+    if offsets is None:
+        return poses[:, None, :2]
+    o = np.asarray(offsets, dtype=float).reshape(-1, 2)
+    c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+    return np.stack((poses[:, 0:1] + o[:, 0] * c - o[:, 1] * s, poses[:, 1:2] + o[:, 0] * s + o[:, 1] * c), axis=-1)
+
+
+def step_violations(poses: np.ndarray, rects: np.ndarray, offsets: np.ndarray | None = None,
+                    tol: float = 1e-9) -> int:
+    """Number of poses (K, 3) [m, m, rad] at which some body point lies outside every
+    rectangle (R, 4) [m]: each point of ``offsets`` (P, 2) [m] in the body frame (the disc
+    centres the hard constraints hold in the safe areas), or the position itself when
+    ``offsets`` is None (:func:`safe_area_violations` of the positions). A pose counts
+    once however many of its points are outside."""
+    pts = body_points(poses, offsets)
+    if pts.shape[1] == 1:
+        return safe_area_violations(pts[:, 0], rects, tol)
+    k, p = pts.shape[:2]
+    if k == 0:
+        return 0
+    rects = np.asarray(rects, dtype=float).reshape(-1, 4)
+    if len(rects) == 0:
+        return int(k)
+    x = pts.reshape(-1, 2)[:, 0:1]
+    y = pts.reshape(-1, 2)[:, 1:2]
+    inside = ((x >= rects[None, :, 0] - tol) & (x <= rects[None, :, 2] + tol)
+              & (y >= rects[None, :, 1] - tol) & (y <= rects[None, :, 3] + tol)).any(axis=1)
+    return int(np.sum(~inside.reshape(k, p).all(axis=1)))
+
+
 def episode_json(
     episode: Episode,
     *,
@@ -60,6 +95,7 @@ def episode_json(
     rects: np.ndarray | None,
     mismatch: dict[str, float],
     setup_ms: float = 0.0,
+    points: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """The ``run --json`` document of one episode (keys, types and units: docs/outputs.md).
 
@@ -71,6 +107,9 @@ def episode_json(
         start: (3,) [m, m, rad] start pose actually used.
         goal: (2,) [m] goal.
         rects: (R, 4) [m] safe areas for ``safe_area_violations`` (None: not applicable, 0).
+        points: (P, 2) [m] body-frame points every one of which must lie in ``rects`` at a
+            step for it not to count in ``safe_area_violations`` (:func:`step_violations`;
+            the disc centres of SA-MPC's ``"discs"`` mode); None: the position alone.
         mismatch: the changed mismatch keys.
         setup_ms: [ms] one-off planning work (mapping + planning) charged to the first
             step's ``pipeline_ms`` so the pipeline figures include it.
@@ -95,7 +134,7 @@ def episode_json(
         "path_length_m": path_length(np.vstack([poses[:, :2], episode.final_pose[None, :2]])) if len(poses) else 0.0,
         "min_clearance_m": float(clear.min()) if clear.size else None,
         "collisions": int(episode.collisions),
-        "safe_area_violations": safe_area_violations(poses[:, :2], rects) if rects is not None else 0,
+        "safe_area_violations": step_violations(poses, rects, points) if rects is not None else 0,
         "solver_failures": int(episode.solver_failures),
         "solve_ms": timing_stats(tr.solve_ms),
         "pipeline_ms": timing_stats(pipeline, percentiles=False),
