@@ -68,6 +68,7 @@ from sanav_mj.control.config import MPCConfig
 from sanav_mj.control.localisation import ScanLocaliser
 from sanav_mj.control.replan import kept_prefix, prefixed_areas
 from sanav_mj.control.sa_mpc import SAMPC
+from sanav_mj.control.scan_turn import route_bearing, stopping_rate
 from sanav_mj.control.sensed_footprint import SensedFootprint, StraightBrakeSAMPC
 from sanav_mj.control.sensing_config import SensingConfig
 from sanav_mj.mapping.grow import FreeCells
@@ -232,6 +233,22 @@ def in_ok_cells(g, pts: np.ndarray, ok_at) -> np.ndarray:
     return ok_at(cells.ravel()).reshape(4, len(pts)).any(axis=0)
 
 
+def local_goal(g, route: np.ndarray | None, goal: np.ndarray) -> np.ndarray | None:
+    """(2,) [m] the last point of ``route``'s (P, 2) [m] leading stretch in safe cells of the
+    grid ``g`` (a copy of ``goal`` (2,) [m] when the whole route is safe, or without a route);
+    None when the route does not start in safe cells."""
+    if route is None:
+        return goal.copy()
+    safe = in_ok_cells(g, route, g.safe_at)
+    if safe.all():
+        return goal.copy()
+    first = int(np.argmax(safe))
+    if not safe[first]:
+        return None
+    stop = first + int(np.argmin(safe[first:]))  # first unsafe sample after the safe stretch
+    return route[stop - 1].copy()
+
+
 class SensingSAMPC:
     """SA-MPC driving on the map its lidar builds (the Controller protocol).
 
@@ -338,6 +355,7 @@ class SensingSAMPC:
         self._turn_steps = 0
         self._turn_w = 0.0
         self._turn_sign = 1.0
+        self._turn_heading = 0.0  # [rad] the heading the turn on the spot goes towards
         self._mpc_fresh = True
         if self.mpc is not None:
             self.mpc.reset(np.asarray(pose, dtype=float).reshape(3))
@@ -577,18 +595,8 @@ class SensingSAMPC:
         self._grown = grown
 
     def _local_goal(self, route: np.ndarray | None) -> np.ndarray | None:
-        """The last point of the route's leading stretch in safe cells (the goal itself when
-        the whole route is safe); None when the route does not start in safe cells."""
-        if route is None:
-            return self.goal.copy()
-        safe = in_ok_cells(self.map.grid, route, self.map.grid.safe_at)
-        if safe.all():
-            return self.goal.copy()
-        first = int(np.argmax(safe))
-        if not safe[first]:
-            return None
-        stop = first + int(np.argmin(safe[first:]))  # first unsafe sample after the safe stretch
-        return route[stop - 1].copy()
+        """:func:`local_goal` on the current map."""
+        return local_goal(self.map.grid, route, self.goal)
 
     def _follow(self, plan: Plan, pose: np.ndarray, areas: SafeAreas, boxes: np.ndarray,
                 table: FreeCells | None = None) -> None:
@@ -615,13 +623,21 @@ class SensingSAMPC:
 
     def _scan_turn(self, obs: Observation) -> Command:
         """Turn on the spot (the body stays in the disc it occupies) to see around the robot."""
-        if self._turn_steps == 0:
-            # turn towards the goal's bearing: the plan that follows starts closer to its heading
-            bearing = math.atan2(self.goal[1] - float(obs.pose[1]), self.goal[0] - float(obs.pose[0]))
-            err = math.remainder(bearing - float(obs.pose[2]), math.tau) if np.all(np.isfinite(obs.pose)) else 0.0
-            self._turn_sign = -1.0 if err < 0 else 1.0
+        finite = bool(np.all(np.isfinite(obs.pose)))
+        if self._turn_steps == 0:  # towards the goal's bearing or the route's heading: the plan starts closer to it
+            h = math.atan2(self.goal[1] - float(obs.pose[1]), self.goal[0] - float(obs.pose[0]))
+            if self.config.scan_turn_route and finite:
+                h = route_bearing(self.body.planning_areas(self.map.route_areas()[1]), obs.pose, self.goal,
+                                  self.robot, self.planner, h)
+            self._turn_sign = -1.0 if finite and math.remainder(h - float(obs.pose[2]), math.tau) < 0 else 1.0
+            self._turn_heading = h
         self._turn_steps += 1
         rate = self._turn_sign * self.config.scan_turn_rate
+        if self.config.scan_turn_stop and finite and obs.scan is not None:
+            g = self.map.grid
+            rate = self._turn_sign * stopping_rate(g, g.unknown_near(grid_cells(g, self.body.own_points(obs.pose))),
+                                                   obs.pose, self.sensor_offset, obs.scan.angles, self._turn_sign,
+                                                   self._turn_heading, self.robot, self.dt, self.config)
         target = 0.0 if self._turn_steps * self.dt > self.config.max_scan_turn_s else rate
         step = self.robot.alpha_max * self.dt  # within the yaw-rate rate bound of the MPC that follows
         w = float(np.clip(target, self._turn_w - step, self._turn_w + step))

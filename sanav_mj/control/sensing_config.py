@@ -139,6 +139,23 @@ class SensingConfig:
             worlds (discs) the mean BARN metric rose 0.335 -> 0.343 (85 / 100 both, 0
             collisions) but one run (barn_0013) stalled 85 steps outside the step's safe
             areas (docs/results.md, "Where the lidar run's time goes").
+        scan_turn_stop: the turn on the spot before the first plan brakes so as to stop
+            where the lidar's field of view will have swept every unknown cell within the
+            inflation radius of the own points' cells (predicted from the lidar's offset and
+            field of view, :func:`~sanav_mj.control.scan_turn.sweep_angle`), turning at up to
+            ``scan_turn_rate`` (capped by ``RobotParams.w_max``) and at least
+            ``scan_turn_creep`` until the own points are safe; False (default): at
+            ``scan_turn_rate`` until they are (the SA-MPC then brakes the turn, overshooting
+            by about ``rate^2 / (2 alpha_max)``). Only the turn's speed changes: the robot
+            turns on the spot either way and the first plan still waits for the own points to
+            be safe.
+        scan_turn_route: the turn on the spot goes towards the heading of the route (planned
+            on the route areas of the first scan: unknown space counts as passable) at 1 m
+            from the robot, instead of towards the goal's bearing; the goal's bearing when no
+            route exists.
+        scan_turn_creep: [rad/s] > 0, the least yaw rate of the ``scan_turn_stop`` turn
+            while the own points are not yet safe (a cell the prediction calls swept but no
+            beam has crossed yet).
     """
 
     replan_interval: int = 5
@@ -166,6 +183,9 @@ class SensingConfig:
     route_polyline: bool = False
     grow: float = 0.0
     unseen_route: float = 0.0
+    scan_turn_stop: bool = False
+    scan_turn_route: bool = False
+    scan_turn_creep: float = 0.5
 
     def __post_init__(self) -> None:
         if isinstance(self.replan_interval, bool) or not isinstance(self.replan_interval, int) \
@@ -192,7 +212,10 @@ class SensingConfig:
                              f"got {type(self.footprint).__name__}")
         if isinstance(self.beam_stride, bool) or not isinstance(self.beam_stride, int) or self.beam_stride < 1:
             raise ValueError(f"SensingConfig.beam_stride: expected an integer >= 1, got {self.beam_stride!r}")
-        for name in ("scan_turn_rate", "max_scan_turn_s"):
+        for name in ("scan_turn_stop", "scan_turn_route"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"SensingConfig.{name}: expected True or False, got {getattr(self, name)!r}")
+        for name in ("scan_turn_rate", "max_scan_turn_s", "scan_turn_creep"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"SensingConfig.{name}: expected a finite number > 0, got {v!r}")
