@@ -74,8 +74,11 @@ def test_turns_on_the_spot_until_its_own_position_is_observed_safe():
 def test_the_turn_on_the_spot_goes_towards_the_goal(yaw, sign):
     """The scan turn before the first plan turns towards the goal's bearing (the goal is
     straight ahead along +x of the origin here), at the yaw-rate rate bound up to
-    ``scan_turn_rate``, and keeps its direction."""
+    ``scan_turn_rate`` (the plain turn, ``scan_turn_stop`` off), and keeps its direction."""
+    from dataclasses import replace
+
     sc, ctrl = _ctrl()
+    ctrl.config = replace(ctrl.config, scan_turn_stop=False)
     ctrl.reset(np.array([0.0, 0.0, yaw]))
     blind = _wall_scan(2.0)
     blind.hit[:] = False
