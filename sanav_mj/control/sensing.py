@@ -46,7 +46,10 @@ control thread only the hand-over; the run stays deterministic (the hand-over st
 
 Before a first plan exists (at the start the cells around the robot behind the sensor are
 unknown, so the robot's own position is not yet safe) the robot turns on the spot, which
-keeps its body inside the disc it already occupies, until its position is safe.
+keeps its body inside the disc it already occupies, until its position is safe; with
+``SensingConfig.scan_turn_stop`` (default) it brakes so as to come to rest where the lidar's
+field of view will have swept the unknown cells near its own points
+(:mod:`~sanav_mj.control.scan_turn`), so the SA-MPC does not have to brake the turn.
 
 The controller keeps per-step records for the run JSON, the recording and tests: the map
 update time of each scan, the replans (step, reason) and the corridor rectangles in use.
@@ -356,6 +359,7 @@ class SensingSAMPC:
         self._turn_w = 0.0
         self._turn_sign = 1.0
         self._turn_heading = 0.0  # [rad] the heading the turn on the spot goes towards
+        self._angles = None  # the beam angles of the last scan (None before the first)
         self._mpc_fresh = True
         if self.mpc is not None:
             self.mpc.reset(np.asarray(pose, dtype=float).reshape(3))
@@ -398,6 +402,8 @@ class SensingSAMPC:
         if self.config.localise and self.config.controller_pose == "estimate":
             obs = replace(obs, pose=pose)
         self.last_scan = obs.scan
+        if obs.scan is not None:
+            self._angles = obs.scan.angles  # [rad] the beams' directions (the turn's field of view)
         # a background plan requested at the last step: wait for it before the scan changes
         # the map it reads (the hand-over step is fixed, whatever the thread's timing)
         t_wait = time.perf_counter()
@@ -633,10 +639,10 @@ class SensingSAMPC:
             self._turn_heading = h
         self._turn_steps += 1
         rate = self._turn_sign * self.config.scan_turn_rate
-        if self.config.scan_turn_stop and finite and obs.scan is not None:
-            g = self.map.grid
+        if self.config.scan_turn_stop and finite and self._angles is not None:
+            g = self.map.grid  # a step without a scan: the same map, the last scan's field of view
             rate = self._turn_sign * stopping_rate(g, g.unknown_near(grid_cells(g, self.body.own_points(obs.pose))),
-                                                   obs.pose, self.sensor_offset, obs.scan.angles, self._turn_sign,
+                                                   obs.pose, self.sensor_offset, self._angles, self._turn_sign,
                                                    self._turn_heading, self.robot, self.dt, self.config)
         target = 0.0 if self._turn_steps * self.dt > self.config.max_scan_turn_s else rate
         step = self.robot.alpha_max * self.dt  # within the yaw-rate rate bound of the MPC that follows
