@@ -149,7 +149,7 @@ class SensingConfig:
             and on the 100 worlds (discs, lidar) seed 0 / seed 1 the mean BARN metric went
             0.343 -> 0.347 / 0.322 -> 0.330 (89 -> 87 / 86 -> 86 at the goal, 0 collisions),
             the paper scenarios with the lidar (seeds 0-4, both modes) 50 / 50, 0 collisions
-            (docs/results.md, "Lidar tempo (h16tempo2)"). False: at ``scan_turn_rate`` until
+            (docs/results.md, "Lidar tempo"). False: at ``scan_turn_rate`` until
             they are (the SA-MPC then brakes the turn, overshooting by about
             ``rate^2 / (2 alpha_max)``, 0.5 rad at 2 rad/s). Only the turn's speed changes:
             the robot turns on the spot either way and the first plan still waits for the own
