@@ -46,7 +46,10 @@ control thread only the hand-over; the run stays deterministic (the hand-over st
 
 Before a first plan exists (at the start the cells around the robot behind the sensor are
 unknown, so the robot's own position is not yet safe) the robot turns on the spot, which
-keeps its body inside the disc it already occupies, until its position is safe.
+keeps its body inside the disc it already occupies, until its position is safe; with
+``SensingConfig.scan_turn_stop`` (default) it brakes so as to come to rest where the lidar's
+field of view will have swept the unknown cells near its own points
+(:mod:`~sanav_mj.control.scan_turn`), so the SA-MPC does not have to brake the turn.
 
 The controller keeps per-step records for the run JSON, the recording and tests: the map
 update time of each scan, the replans (step, reason) and the corridor rectangles in use.
@@ -68,6 +71,7 @@ from sanav_mj.control.config import MPCConfig
 from sanav_mj.control.localisation import ScanLocaliser
 from sanav_mj.control.replan import kept_prefix, prefixed_areas
 from sanav_mj.control.sa_mpc import SAMPC
+from sanav_mj.control.scan_turn import route_bearing, stopping_rate
 from sanav_mj.control.sensed_footprint import SensedFootprint, StraightBrakeSAMPC
 from sanav_mj.control.sensing_config import SensingConfig
 from sanav_mj.mapping.grow import FreeCells
@@ -232,6 +236,22 @@ def in_ok_cells(g, pts: np.ndarray, ok_at) -> np.ndarray:
     return ok_at(cells.ravel()).reshape(4, len(pts)).any(axis=0)
 
 
+def local_goal(g, route: np.ndarray | None, goal: np.ndarray) -> np.ndarray | None:
+    """(2,) [m] the last point of ``route``'s (P, 2) [m] leading stretch in safe cells of the
+    grid ``g`` (a copy of ``goal`` (2,) [m] when the whole route is safe, or without a route);
+    None when the route does not start in safe cells."""
+    if route is None:
+        return goal.copy()
+    safe = in_ok_cells(g, route, g.safe_at)
+    if safe.all():
+        return goal.copy()
+    first = int(np.argmax(safe))
+    if not safe[first]:
+        return None
+    stop = first + int(np.argmin(safe[first:]))  # first unsafe sample after the safe stretch
+    return route[stop - 1].copy()
+
+
 class SensingSAMPC:
     """SA-MPC driving on the map its lidar builds (the Controller protocol).
 
@@ -338,6 +358,8 @@ class SensingSAMPC:
         self._turn_steps = 0
         self._turn_w = 0.0
         self._turn_sign = 1.0
+        self._turn_heading = 0.0  # [rad] the heading the turn on the spot goes towards
+        self._angles = None  # the beam angles of the last scan (None before the first)
         self._mpc_fresh = True
         if self.mpc is not None:
             self.mpc.reset(np.asarray(pose, dtype=float).reshape(3))
@@ -382,6 +404,8 @@ class SensingSAMPC:
         if self.config.localise and self.config.controller_pose == "estimate":
             obs = replace(obs, pose=pose)
         self.last_scan = obs.scan
+        if obs.scan is not None:
+            self._angles = obs.scan.angles  # [rad] the beams' directions (the turn's field of view)
         # a background plan requested at the last step: wait for it before the scan changes
         # the map it reads (the hand-over step is fixed, whatever the thread's timing)
         t_wait = time.perf_counter()
@@ -579,18 +603,8 @@ class SensingSAMPC:
         self._grown = grown
 
     def _local_goal(self, route: np.ndarray | None) -> np.ndarray | None:
-        """The last point of the route's leading stretch in safe cells (the goal itself when
-        the whole route is safe); None when the route does not start in safe cells."""
-        if route is None:
-            return self.goal.copy()
-        safe = in_ok_cells(self.map.grid, route, self.map.grid.safe_at)
-        if safe.all():
-            return self.goal.copy()
-        first = int(np.argmax(safe))
-        if not safe[first]:
-            return None
-        stop = first + int(np.argmin(safe[first:]))  # first unsafe sample after the safe stretch
-        return route[stop - 1].copy()
+        """:func:`local_goal` on the current map."""
+        return local_goal(self.map.grid, route, self.goal)
 
     def _follow(self, plan: Plan, pose: np.ndarray, areas: SafeAreas, boxes: np.ndarray,
                 table: FreeCells | None = None) -> None:
@@ -619,13 +633,21 @@ class SensingSAMPC:
 
     def _scan_turn(self, obs: Observation) -> Command:
         """Turn on the spot (the body stays in the disc it occupies) to see around the robot."""
-        if self._turn_steps == 0:
-            # turn towards the goal's bearing: the plan that follows starts closer to its heading
-            bearing = math.atan2(self.goal[1] - float(obs.pose[1]), self.goal[0] - float(obs.pose[0]))
-            err = math.remainder(bearing - float(obs.pose[2]), math.tau) if np.all(np.isfinite(obs.pose)) else 0.0
-            self._turn_sign = -1.0 if err < 0 else 1.0
+        finite = bool(np.all(np.isfinite(obs.pose)))
+        if self._turn_steps == 0:  # towards the goal's bearing or the route's heading: the plan starts closer to it
+            h = math.atan2(self.goal[1] - float(obs.pose[1]), self.goal[0] - float(obs.pose[0]))
+            if self.config.scan_turn_route and finite:
+                h = route_bearing(self.body.planning_areas(self.map.route_areas()[1]), obs.pose, self.goal,
+                                  self.robot, self.planner, h)
+            self._turn_sign = -1.0 if finite and math.remainder(h - float(obs.pose[2]), math.tau) < 0 else 1.0
+            self._turn_heading = h
         self._turn_steps += 1
         rate = self._turn_sign * self.config.scan_turn_rate
+        if self.config.scan_turn_stop and finite and self._angles is not None:
+            g = self.map.grid  # a step without a scan: the same map, the last scan's field of view
+            rate = self._turn_sign * stopping_rate(g, g.unknown_near(grid_cells(g, self.body.own_points(obs.pose))),
+                                                   obs.pose, self.sensor_offset, self._angles, self._turn_sign,
+                                                   self._turn_heading, self.robot, self.dt, self.config)
         target = 0.0 if self._turn_steps * self.dt > self.config.max_scan_turn_s else rate
         step = self.robot.alpha_max * self.dt  # within the yaw-rate rate bound of the MPC that follows
         w = float(np.clip(target, self._turn_w - step, self._turn_w + step))

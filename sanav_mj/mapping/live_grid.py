@@ -613,6 +613,18 @@ class LiveGrid:
         return OccupancyGrid(occupied=~self.route_safe(), resolution=self.resolution, origin=self.origin.copy(),
                              inflation=self.inflation, bounds=self.bounds.copy())
 
+    def unknown_near(self, cells) -> np.ndarray:
+        """(U,) int64 sorted flat indices of the :data:`UNKNOWN` cells within the safe kernel
+        (the inflation radius) of the cells with flat indices ``cells``: the unknown cells
+        that keep them from being safe (besides non-free cells)."""
+        ny, nx = self.shape
+        i, j = np.divmod(np.asarray(cells, dtype=np.int64).ravel(), nx)
+        ii = (i[:, None] + self._offsets[None, :, 0]).ravel()
+        jj = (j[:, None] + self._offsets[None, :, 1]).ravel()
+        inside = (ii >= 0) & (ii < ny) & (jj >= 0) & (jj < nx)
+        near = np.unique(ii[inside] * nx + jj[inside])
+        return near[self._state(self.log_odds.ravel()[near]) == UNKNOWN]
+
     def safe_at(self, cells) -> np.ndarray:
         """(K,) bool safe state of the cells with flat indices ``cells`` (``i * nx + j``)."""
         i, j = np.divmod(np.asarray(cells, dtype=np.int64), self.shape[1])

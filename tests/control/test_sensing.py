@@ -74,8 +74,11 @@ def test_turns_on_the_spot_until_its_own_position_is_observed_safe():
 def test_the_turn_on_the_spot_goes_towards_the_goal(yaw, sign):
     """The scan turn before the first plan turns towards the goal's bearing (the goal is
     straight ahead along +x of the origin here), at the yaw-rate rate bound up to
-    ``scan_turn_rate``, and keeps its direction."""
+    ``scan_turn_rate`` (the plain turn, ``scan_turn_stop`` off), and keeps its direction."""
+    from dataclasses import replace
+
     sc, ctrl = _ctrl()
+    ctrl.config = replace(ctrl.config, scan_turn_stop=False)
     ctrl.reset(np.array([0.0, 0.0, yaw]))
     blind = _wall_scan(2.0)
     blind.hit[:] = False
@@ -142,3 +145,27 @@ def test_cells_of_a_few_points_equal_the_array_path():
         fast = grid_cells(g, pts)
         ref = grid_cells(g, np.vstack([pts, filler]))[:p]
         assert fast.dtype == np.int64 and np.array_equal(fast, ref)
+
+
+def test_the_braking_turn_keeps_its_rate_on_steps_without_a_scan():
+    """``scan_turn_stop``: a control step that brings no scan (a lidar slower than the control
+    rate) turns at the rate the last scan's field of view gives on the unchanged map, not at
+    the plain ``scan_turn_rate``: the commands equal those of a run whose scans add nothing."""
+    def run(every):
+        sc, ctrl = _ctrl(localise=False)
+        blind = _wall_scan(2.0)
+        blind.hit[:] = False
+        blind.ranges[:] = 0.05  # sees nothing: the map stays as the first step leaves it
+        ws, yaw = [], 0.86
+        for k in range(10):
+            scan = blind if k % every == 0 else None
+            cmd = ctrl.step(Observation(t=0.1 * k, pose=np.array([0.0, 0.0, yaw]), velocity=np.zeros(2), scan=scan))
+            assert ctrl.mpc is None and cmd.status == "scan_turn"
+            ws.append(cmd.w)
+            yaw += cmd.w * 0.1
+        return np.array(ws), ctrl
+
+    every_step, ctrl = run(1)
+    assert ctrl.config.scan_turn_stop
+    assert np.allclose(run(2)[0], every_step, atol=1e-12)
+    assert np.abs(every_step).max() < ctrl.config.scan_turn_rate  # braking below the plain rate

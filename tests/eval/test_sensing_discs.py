@@ -348,6 +348,9 @@ def test_discs_lidar_controller_narrow_width():
     ({"narrow_width": float("inf")}, "narrow_width"),
     ({"refresh": 1}, "refresh"),
     ({"straight_brake": "yes"}, "straight_brake"),
+    ({"scan_turn_stop": 1}, "scan_turn_stop"),
+    ({"scan_turn_route": None}, "scan_turn_route"),
+    ({"scan_turn_creep": 0.0}, "scan_turn_creep"),
 ])
 def test_sensing_config_discs_fields_are_validated(kwargs, match):
     from sanav_mj.control.sensing_config import SensingConfig
@@ -388,3 +391,42 @@ def test_scan_matcher_reaches_as_far_in_metres_on_the_finer_sensed_cells(monkeyp
     assert unscaled.config.map.match == base
     few_base, first_base = run(unscaled)
     assert few_base > 20 and (first_base is None or first_base > first + 20)
+
+
+def test_the_stopping_scan_turn_brakes_before_the_first_plan_which_still_waits_for_safe_own_points():
+    """``SensingConfig.scan_turn_stop``: the turn on the spot brakes so as to stop where the
+    lidar will have swept the unknown cells near the disc centres; the first plan still comes
+    only once every disc centre stands in a safe cell, and the yaw rate it takes over is far
+    below the plain turn's ``scan_turn_rate`` (which the SA-MPC then has to brake: the
+    overshoot the option removes)."""
+    from dataclasses import replace
+
+    from sanav_mj.control.sensing import grid_cells
+
+    sc = load_scenario("single_rect")
+
+    def first_plan(stop: bool):
+        ctrl = lidar_controller(sc, DISCS)
+        ctrl.config = replace(ctrl.config, scan_turn_stop=stop)
+        seen = []
+        step = ctrl.step
+
+        def logged(obs):
+            cmd = step(obs)
+            if ctrl.records[-1].replan == "initial":
+                g = ctrl.map.grid
+                seen.append((len(ctrl.records), ctrl._turn_w,
+                             bool(g.safe_at(grid_cells(g, ctrl.body.own_points(ctrl.estimate))).all())))
+            return cmd
+
+        ctrl.step = logged
+        out = run_scenario(sc, seed=0, sensing="lidar", controller_spec=DISCS, controller_obj=ctrl, time_limit_s=2.5)
+        yaw = np.unwrap(np.asarray(out.episode.trace.pose)[:, 2])
+        return seen[0] + (float(yaw[0] - yaw.min()),)  # the turn goes clockwise here
+
+    k0, w0, safe0, swept0 = first_plan(False)
+    k1, w1, safe1, swept1 = first_plan(True)
+    assert safe0 and safe1
+    assert abs(w0) == pytest.approx(2.0) and abs(w1) <= abs(w0) - 0.5
+    assert k1 <= k0 + 5  # braking costs at most a few steps of the turn
+    assert swept1 <= swept0 - 0.2  # [rad] the overshoot saved (about 0.4 rad here)

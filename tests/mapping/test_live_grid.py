@@ -634,3 +634,27 @@ def test_integrate_tails_is_integrate_for_long_tails_and_crosses_less_for_short(
         assert np.array_equal(a.safe_changed, b.safe_changed)
     assert np.all(gs[2].log_odds >= gs[0].log_odds)  # fewer free observations, the same returns
     assert np.count_nonzero(gs[2].log_odds > gs[0].log_odds) > 100
+
+
+def test_unknown_near_is_the_unknown_part_of_the_kernels():
+    """:meth:`LiveGrid.unknown_near`: the unknown cells within the safe kernel of the given
+    cells, equal to a brute-force union of kernels over :meth:`states` (a hit cell, occupied,
+    and the free cells of a scan are left out; kernels clipped at the grid's edges)."""
+    g = LiveGrid((0, 0, 2, 2), 0.1, 0.25)
+    g.integrate((0.55, 1.05), 0.0, [0.87, 0.6], [True, False], [0.0, np.pi / 2])
+    st = g.states()
+    assert (st == OCCUPIED).any() and (st == FREE).any()
+    ny, nx = g.shape
+    cells = np.array([10 * nx + 5, 10 * nx + 6, 0])  # two beside the beam and the corner cell
+    ref = set()
+    for c in cells:
+        i, j = divmod(int(c), nx)
+        for di, dj in inflation_offsets(0.25, 0.1):
+            if 0 <= i + di < ny and 0 <= j + dj < nx and st[i + di, j + dj] == UNKNOWN:
+                ref.add((i + di) * nx + j + dj)
+    got = g.unknown_near(cells)
+    assert got.tolist() == sorted(ref) and len(ref) > 0
+    # a cell whose kernel holds no unknown cell returns none
+    g2 = LiveGrid((0, 0, 1, 1), 0.1, 0.1)
+    g2.observe_free(np.arange(100))
+    assert g2.unknown_near([55]).size == 0
