@@ -194,7 +194,7 @@ def test_the_shift_check_reads_the_untightened_unrelaxed_boxes_while_moving(dy):
     assert abs(ctl.u_prev[0]) > 0.02  # moving: no relaxation in the shift check
     info = ctl.last
     con = ctl.constrain(info.guess_states[0], info.x_ref, info.u_ref, info.guess_states)
-    ss, bs = con.context[2], con.context[3]
+    ss = con.context[2]
     want_lb, want_ub = DiscCover.bounds(np.array([stage_boxes(ctl.chain, s) for s in ss]))
     lb, ub = con.shift_bounds
     np.testing.assert_array_equal(lb, want_lb)

@@ -651,9 +651,11 @@ def test_outside_its_box_at_speed_the_speed_bound_brakes_to_the_cap(l_case):
     ctl = SAMPC(ROBOT, areas, plan, MPCConfig(adaptation=AdaptationConfig(pose_filter=None)))  # a real jump, not noise
     x = np.array([1.0, 0.5, 0.0])
     ctl.reset(x, progress=5, opening_turn=False)
+    vel = np.zeros(2)
     for k in range(12):  # get up to speed along R0
-        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=np.array([cmd.v, cmd.w]) if k else np.zeros(2)))
-        x = step_np(x, [cmd.v, cmd.w], ctl.dt)
+        cmd = ctl.step(Observation(t=0.1 * k, pose=x, velocity=vel))
+        vel = np.array([cmd.v, cmd.w])
+        x = step_np(x, vel, ctl.dt)
     v0 = cmd.v
     assert v0 > 0.4
     x_out = x + np.array([0.0, -0.58, 0.0])  # measured 10 cm below the shrunk R0 box (y >= 0.02)

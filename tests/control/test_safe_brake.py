@@ -3,7 +3,6 @@ lidar ``"discs"`` mode's use of it (:class:`~sanav_mj.control.sensed_footprint.S
 
 from __future__ import annotations
 
-from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np

@@ -5,7 +5,6 @@ Needs the ``rl`` extra (gymnasium; the training test also stable-baselines3 and 
 
 from __future__ import annotations
 
-import math
 import warnings
 
 import numpy as np
