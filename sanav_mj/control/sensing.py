@@ -363,7 +363,6 @@ class SensingSAMPC:
         self._mpc_fresh = True
         if self.mpc is not None:
             self.mpc.reset(np.asarray(pose, dtype=float).reshape(3))
-            self._mpc_fresh = True
             if isinstance(self.mpc, StraightBrakeSAMPC):
                 self.mpc.free_areas = self.map.areas_now  # the new episode's map
 
