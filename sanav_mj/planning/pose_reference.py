@@ -511,6 +511,8 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
         chains = []
         for d in range(discs.shape[1]):
             ch = member_chain(cand, discs[:, d], margin, overlap_at=None if sliver is None else sliver[:, d])
+            if ch is None and sliver is not None:  # the overlap rule walked into a dead end
+                ch = member_chain(cand, discs[:, d], margin)
             if ch is None:
                 return None, f"disc {d} of the pose path has no chain of safe areas and portal bridges", ext
             chains.append(ch)
@@ -523,11 +525,24 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
         chains, why, extra = disc_chains(dense)
     if chains is None:
         return None, why
-    discs = disc_points(dense[:, 0], dense[:, 1], dense[:, 2], offsets)
     c = int(np.argmin(np.hypot(*offsets.T)))
-    corridor = corridor_of_points(areas, discs[:, c])
-    if corridor is None or chain_walk(rects, corridor, discs[:, c]) is None:
+
+    def centre_corridor(dense: np.ndarray) -> np.ndarray | None:
+        discs = disc_points(dense[:, 0], dense[:, 1], dense[:, 2], offsets)
+        corridor = corridor_of_points(areas, discs[:, c])
+        return None if corridor is None or chain_walk(rects, corridor, discs[:, c]) is None else corridor
+
+    corridor = centre_corridor(dense)
+    if corridor is None and smoothed:  # the lattice route itself
+        dense, kinds = densify(route, offsets)
+        smoothed = False
+        chains, why, extra = disc_chains(dense)
+        if chains is None:
+            return None, why
+        corridor = centre_corridor(dense)
+    if corridor is None:
         return None, "the pose path's centre crosses a corner between safe areas"
+    discs = disc_points(dense[:, 0], dense[:, 1], dense[:, 2], offsets)
     v_scale = None
     if raster is not None and slow_clearance > 0:
         clr = raster.clearance_at(discs).min(axis=-1)
