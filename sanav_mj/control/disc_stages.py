@@ -68,7 +68,11 @@ def member_chain_of(areas, members: np.ndarray, margin: float, grow: float = 0.0
     allb = member_boxes(areas, 0.0, grow=grow)
     n_base = len(allb)
     if extra is not None and len(extra):
-        allb = np.vstack((allb, np.asarray(extra, dtype=float).reshape(-1, 4)))
+        extra = np.asarray(extra, dtype=float).reshape(-1, 4)
+        if extra_areas is None or np.asarray(extra_areas).shape != (len(extra),):
+            raise ValueError(f"disc_corridors: expected one safe area per extra box ({len(extra)}), got "
+                             f"{None if extra_areas is None else np.asarray(extra_areas).tolist()}")
+        allb = np.vstack((allb, extra))
     m = np.asarray(members, dtype=int).ravel()
     if m.size == 0 or m.min() < 0 or m.max() >= len(allb):
         raise ValueError(f"disc_corridors: expected member indices in [0, {len(allb)}), got {m.tolist()}")

@@ -92,7 +92,8 @@ class ManoeuvreConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"ManoeuvreConfig.{name}: expected a finite number > 0, got {v!r}")
-        for name in ("spin_cost", "arc_cost", "cusp_cost", "back", "ahead", "slack", "grow", "sliver_width", "slow_clearance"):
+        for name in ("spin_cost", "arc_cost", "cusp_cost", "back", "ahead", "slack", "grow", "sliver_width",
+                     "slow_clearance"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"ManoeuvreConfig.{name}: expected a finite number >= 0, got {v!r}")
