@@ -43,7 +43,8 @@ from sanav_mj.control.stages import (
     tighten_relax,
 )
 
-def member_chain_of(areas, members: np.ndarray, margin: float, grow: float = 0.0) -> CorridorChain:
+def member_chain_of(areas, members: np.ndarray, margin: float, grow: float = 0.0, extra: np.ndarray | None = None,
+                    extra_areas: np.ndarray | None = None) -> CorridorChain:
     """The :class:`CorridorChain` of a pose route's per-disc member sequence (``Plan.disc_corridors``).
 
     Args:
@@ -53,6 +54,8 @@ def member_chain_of(areas, members: np.ndarray, margin: float, grow: float = 0.0
         margin: [m] each stay / advance box is shrunk by this (``box_margin``).
         grow: [m] > 0: the members grown to maximal free rectangles, at most this per side
             (``member_boxes(..., grow=grow)``, a plan whose ``info["grown_members"]`` is set).
+        extra, extra_areas: None, or (X, 4) [m] further boxes indexed after the member boxes
+            and (X,) int the safe area of each (``Plan.extra_members``, ``Plan.extra_areas``).
 
     Raises:
         ValueError: an index out of range, or consecutive members that do not overlap with
@@ -63,6 +66,13 @@ def member_chain_of(areas, members: np.ndarray, margin: float, grow: float = 0.0
     from sanav_mj.control.stages import box_intersection, shrink_box
 
     allb = member_boxes(areas, 0.0, grow=grow)
+    n_base = len(allb)
+    if extra is not None and len(extra):
+        extra = np.asarray(extra, dtype=float).reshape(-1, 4)
+        if extra_areas is None or np.asarray(extra_areas).shape != (len(extra),):
+            raise ValueError(f"disc_corridors: expected one safe area per extra box ({len(extra)}), got "
+                             f"{None if extra_areas is None else np.asarray(extra_areas).tolist()}")
+        allb = np.vstack((allb, extra))
     m = np.asarray(members, dtype=int).ravel()
     if m.size == 0 or m.min() < 0 or m.max() >= len(allb):
         raise ValueError(f"disc_corridors: expected member indices in [0, {len(allb)}), got {m.tolist()}")
@@ -72,7 +82,8 @@ def member_chain_of(areas, members: np.ndarray, margin: float, grow: float = 0.0
         raise ValueError(f"disc_corridors: consecutive member boxes must overlap, got members {m.tolist()}")
     R = len(areas.rects)
     edges = np.asarray(areas.edges, dtype=int).reshape(-1, 2)
-    pairs = np.array([(i, i) if i < R else tuple(edges[i - R]) for i in m], dtype=int).reshape(-1, 2)
+    pairs = np.array([(i, i) if i < R else tuple(edges[i - R]) if i < n_base else (int(extra_areas[i - n_base]),) * 2
+                      for i in m], dtype=int).reshape(-1, 2)
     stay = shrink_box(boxes, margin)
     adv = np.empty_like(boxes)
     adv[0] = stay[0]

@@ -311,7 +311,8 @@ def _pose_route_tables(areas: SafeAreas, plan: Plan, box_margin: float, dt: floa
     st, dc = plan.reference.stops, getattr(plan, "disc_corridors", None)
     stops = None if st is None else np.unique(np.rint(np.asarray(st, float) * plan.reference.dt / dt).astype(int))
     grow = float(plan.info.get("grown_members", 0.0))
-    return stops, (None if dc is None else [member_chain_of(areas, c, box_margin, grow) for c in dc])
+    ex, ea = getattr(plan, "extra_members", None), getattr(plan, "extra_areas", None)
+    return stops, (None if dc is None else [member_chain_of(areas, c, box_margin, grow, ex, ea) for c in dc])
 
 
 def _nearest_sample(ref_states: np.ndarray, lo: int, hi: int, pos: np.ndarray, sweep: float | None,

@@ -249,7 +249,7 @@ def manoeuvre_plan(plan: Plan, areas: SafeAreas, scenario: Scenario, spec: Contr
     from sanav_mj.footprint import robot_footprint
     from sanav_mj.planning.manoeuvre import manoeuvre_route
     from sanav_mj.planning.pose_reference import route_plan
-    from sanav_mj.planning.pose_search import PoseRoute, member_boxes
+    from sanav_mj.planning.pose_search import PointRaster, PoseRoute, member_boxes
 
     mpc = spec.sa_mpc
     offsets, _ = robot_footprint(scenario.model).discs(mpc.footprint_discs)
@@ -261,13 +261,17 @@ def manoeuvre_plan(plan: Plan, areas: SafeAreas, scenario: Scenario, spec: Contr
         why = "no manoeuvre" if found is None else "none needed"
         return replace(plan, info=dict(plan.info, manoeuvre=why, manoeuvre_ms=ms))
     poses, kinds, n = found
+    free = getattr(areas, "free", None)
+    raster = PointRaster.of_free(free) if cfg.smooth and free is not None else None
     pc = planner_config(scenario.robot, spec)
     lim = mpc.limits(scenario.robot)
     new, why = route_plan(areas, PoseRoute(poses, kinds, 0.0, 0, 0, ms), plan.goal, offsets, pc.dt,
                           pc.speed_fraction * scenario.robot.v_max, pc.speed_fraction * abs(lim.v_min),
                           pc.yaw_rate_fraction * scenario.robot.w_max, pc.accel_fraction * scenario.robot.a_max,
                           pc.yaw_rate_fraction * lim.alpha_max, pc.lateral_accel, info=dict(plan.info),
-                          margin=mpc.stage_box_margin, hold_at_stops=True, grow_members=cfg.grow)
+                          margin=mpc.stage_box_margin, hold_at_stops=True, grow_members=cfg.grow,
+                          sliver_width=cfg.sliver_width, raster=raster,
+                          slow_clearance=cfg.slow_clearance)
     if new is None:
         return replace(plan, info=dict(plan.info, manoeuvre=why, manoeuvre_ms=ms))
     return replace(new, info=dict(new.info, manoeuvre=f"{n} stretches", manoeuvre_ms=ms))

@@ -23,7 +23,7 @@ import numpy as np
 from sanav_mj.mapping.grow_kernel import grow_cells, summed_area
 from sanav_mj.mapping.occupancy import OccupancyGrid
 
-__all__ = ["FreeCells", "grow_rect"]
+__all__ = ["FreeCells", "grow_point", "grow_rect"]
 
 
 @dataclass(frozen=True)
@@ -179,3 +179,36 @@ def grow_rect(cells: FreeCells, rect, limit: float | None = None, use_kernel: bo
     h = cells.resolution
     ox, oy = cells.origin
     return np.array([ox + h * j0, oy + h * i0, ox + h * j1, oy + h * i1])
+
+
+def grow_point(cells: FreeCells, point, limit: float, use_kernel: bool = True) -> np.ndarray | None:
+    """A maximal free rectangle grown around the grid cell that holds ``point``, or None.
+
+    Where the free space runs diagonally, the partition's areas are a staircase of slivers;
+    a box grown from one cell, one row or column per side in turn (:func:`grow_rect`'s
+    rounds -x, +x, -y, +y), is as wide as the diagonal strip allows in both directions
+    (about its width / sqrt 2 for a 45 deg strip), whereas a partition area can be one cell
+    thin. It holds only free cells, so it is as safe as any safe area.
+
+    Args:
+        cells: the grid's :class:`FreeCells`.
+        point: (2,) [m] world x, y.
+        limit: [m] no side moves farther than this from the cell (>= 0).
+
+    Returns:
+        (4,) [m] ``xmin, ymin, xmax, ymax`` of whole free cells containing ``point`` (closed)
+        and maximal (no side can move out by one more cell unless it reached ``limit`` or
+        the grid's edge); None when ``point`` lies outside the grid or in an occupied cell.
+    """
+    p = np.asarray(point, dtype=float).reshape(-1)
+    if p.size != 2 or not np.all(np.isfinite(p)):
+        raise ValueError(f"point must be 2 finite numbers [m], got {p.tolist()}")
+    h = cells.resolution
+    j = math.floor((p[0] - cells.origin[0]) / h)
+    i = math.floor((p[1] - cells.origin[1]) / h)
+    ny, nx = cells.shape
+    if not (0 <= i < ny and 0 <= j < nx) or cells.occupied_in(i, j, i + 1, j + 1):
+        return None
+    ox, oy = cells.origin
+    cell = np.array([ox + h * j, oy + h * i, ox + h * (j + 1), oy + h * (i + 1)])
+    return grow_rect(cells, cell, limit=limit, use_kernel=use_kernel)

@@ -53,6 +53,18 @@ class ManoeuvreConfig:
         slack: [m] how far inside a member box every disc centre of a manoeuvre stays (a
             centre passing the corner where four safe areas meet lies in no box with slack,
             so the route's per-disc chains can walk it: they move on through overlaps).
+        sliver_width: [m] where a disc centre of the route lies in no member box whose
+            sides are all at least this long (a diagonal staircase of slivers), boxes of
+            free cells grown around its points are candidates of its chain
+            (:func:`~sanav_mj.planning.pose_reference.sliver_boxes`); 0: none.
+        smooth: the route (manoeuvres and the reference between them) is smoothed where
+            every disc centre stays in free cells of the map
+            (:func:`~sanav_mj.planning.pose_reference.smooth_route`; the lattice route
+            when the smoothed one's chains do not cover its discs).
+        slow_clearance: [m] with ``smooth``, the route's speed cap at a pose is scaled by
+            ``clip(c / slow_clearance, 0.3, 1)``, ``c`` the smallest clearance of its disc
+            centres in the free cells (:func:`~sanav_mj.planning.pose_reference.route_plan`);
+            0: no scaling.
     """
 
     step: float = 0.02
@@ -71,13 +83,17 @@ class ManoeuvreConfig:
     ahead: float = 0.3
     slack: float = 0.001
     grow: float = 0.25
+    sliver_width: float = 0.06
+    smooth: bool = True
+    slow_clearance: float = 0.1
 
     def __post_init__(self) -> None:
         for name in ("step", "turn", "cell", "yaw_cell", "goal_tol", "goal_yaw_tol"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"ManoeuvreConfig.{name}: expected a finite number > 0, got {v!r}")
-        for name in ("spin_cost", "arc_cost", "cusp_cost", "back", "ahead", "slack", "grow"):
+        for name in ("spin_cost", "arc_cost", "cusp_cost", "back", "ahead", "slack", "grow", "sliver_width",
+                     "slow_clearance"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"ManoeuvreConfig.{name}: expected a finite number >= 0, got {v!r}")

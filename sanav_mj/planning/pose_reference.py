@@ -317,7 +317,8 @@ def _in_boxes(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
             & (points[:, None, 1] >= boxes[None, :, 1] - CONTAIN_TOL) & (points[:, None, 1] <= boxes[None, :, 3] + CONTAIN_TOL))
 
 
-def member_chain(members: np.ndarray, points: np.ndarray, margin: float, tol: float = 0.005) -> np.ndarray | None:
+def member_chain(members: np.ndarray, points: np.ndarray, margin: float, tol: float = 0.005,
+                 overlap_at: np.ndarray | None = None) -> np.ndarray | None:
     """The chain of member boxes a disc centre's dense trajectory walks, or None.
 
     Args:
@@ -328,6 +329,11 @@ def member_chain(members: np.ndarray, points: np.ndarray, margin: float, tol: fl
         tol: [m] a point may lie this far outside its boxes (the search checks its moves
             every 2 cm of disc travel; the dense points are 1 cm apart and may graze a
             corner between two checked poses by a few mm; SA-MPC's rows are exact).
+        overlap_at: None, or (P,) bool: where the walk moves on at a point marked True (a
+            point in a sliver), to the candidate whose intersection with the current member
+            is largest instead of the one holding the following points longest (in a
+            diagonal staircase the longest-holding member meets the current one in a corner
+            square a cell wide, which the robot's disc centre must then hit exactly).
 
     Returns:
         (L,) int member indices such that a monotone walk covers the points the way SA-MPC's
@@ -359,7 +365,13 @@ def member_chain(members: np.ndarray, points: np.ndarray, margin: float, tol: fl
             cand = cand[okc]
         if cand.size == 0:
             return None
-        cur = int(cand[np.argmax(run[i, cand])])
+        if overlap_at is not None and overlap_at[i]:
+            inter = np.concatenate((np.maximum(members[cur, :2], members[cand, :2]),
+                                    np.minimum(members[cur, 2:], members[cand, 2:])), axis=1)
+            area = np.prod(np.maximum(inter[:, 2:] - inter[:, :2], 0.0), axis=1)
+            cur = int(cand[np.argmax(area)])
+        else:
+            cur = int(cand[np.argmax(run[i, cand])])
         out.append(cur)
     return np.array(out, dtype=np.int64)
 
@@ -380,11 +392,54 @@ def _loose_walk(rects: np.ndarray, corridor: np.ndarray, points: np.ndarray, tol
     return out
 
 
+def sliver_boxes(members: np.ndarray, points: np.ndarray, free, width: float, limit: float) -> np.ndarray:
+    """(X, 4) [m] boxes grown around the points that lie in no wide member (diagonal slivers).
+
+    A point (of a disc centre's dense trajectory) counts as in a sliver when every member
+    box holding it has a side shorter than ``width``; around each such point a maximal box
+    of free cells is grown from the cell that holds it
+    (:func:`~sanav_mj.mapping.grow.grow_point`, each side at most ``limit`` [m] out). In a
+    diagonal passage these boxes are squares about the strip's width / sqrt 2 that overlap
+    along it, where the partition's areas are a staircase of cell-thin slivers; every box
+    holds only free cells, as safe as a safe area.
+
+    Args:
+        members: (M, 4) [m] the candidate member boxes.
+        points: (P, 2) [m] disc-centre points, in order.
+        free: :class:`~sanav_mj.mapping.grow.FreeCells` of the map's inflated grid.
+        width: [m] > 0, the smallest side of a member that is not a sliver.
+        limit: [m] >= 0 growth limit per side.
+
+    Returns:
+        (X, 4) [m] distinct boxes, in the order of the first point that grew each.
+    """
+    from sanav_mj.mapping.grow import grow_point
+
+    pts = np.asarray(points, dtype=float).reshape(-1, 2)
+    mb = np.asarray(members, dtype=float).reshape(-1, 4)
+    wide = np.min(mb[:, 2:] - mb[:, :2], axis=1) >= width
+    inside = _in_boxes(pts, mb[wide]) if wide.any() else np.zeros((len(pts), 0), dtype=bool)
+    out: dict[tuple[float, ...], np.ndarray] = {}
+    for p in pts[~inside.any(axis=1)]:
+        b = grow_point(free, p, limit)
+        if b is not None:
+            out.setdefault(tuple(np.round(b, 9).tolist()), b)
+    return np.array(list(out.values()), dtype=float).reshape(-1, 4)
+
+
+def _area_of_boxes(rects: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """(X,) int for boxes (X, 4) [m]: the safe area (rects (R, 4)) nearest each box's centre."""
+    c = 0.5 * (boxes[:, None, :2] + boxes[:, None, 2:])
+    d = np.maximum(np.maximum(rects[None, :, :2] - c, c - rects[None, :, 2:]), 0.0)
+    return np.argmin((d * d).sum(axis=2), axis=1).astype(np.int64) if len(boxes) else np.zeros(0, dtype=np.int64)
+
+
 def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np.ndarray, dt: float,
                v_cap: float, v_rev_cap: float, w_cap: float, a_cap: float, alpha_cap: float,
                a_lat: float, info: dict[str, Any] | None = None,
                raster: PointRaster | None = None, margin: float = 0.02, slow_clearance: float = 0.0,
-               slow_floor: float = 0.3, hold_at_stops: bool = False, grow_members: float = 0.0) -> tuple[Plan | None, str]:
+               slow_floor: float = 0.3, hold_at_stops: bool = False, grow_members: float = 0.0,
+               sliver_width: float = 0.0) -> tuple[Plan | None, str]:
     """A :class:`Plan` following a pose route, or ``(None, why)`` when its corridor does not
     cover every disc centre monotonically (see the module docstring).
 
@@ -413,6 +468,10 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
             rectangles, at most this per side
             (:func:`~sanav_mj.planning.pose_search.member_boxes` with ``grow``; the plan's
             ``info["grown_members"]`` tells SA-MPC to build its chains the same way).
+        sliver_width: [m] > 0 with ``grow_members`` > 0 and ``areas.free`` set: where a disc
+            centre's dense trajectory lies in no member box whose sides are all at least
+            this long, boxes grown around its points (:func:`sliver_boxes`) are further
+            candidates of its chain (``Plan.extra_members``); 0 (default): none.
         raster: the free set the route was searched on; given, the route is smoothed
             (:func:`smooth_route`) and the smoothed one used when every dense pose of it
             is free (``info["pose_smoothed"]``).
@@ -437,28 +496,53 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
     rects = np.asarray(areas.rects, dtype=float)
     boxes = member_boxes(areas, 0.0, grow=grow_members)
 
-    def disc_chains(dense: np.ndarray) -> tuple[list[np.ndarray] | None, str]:
+    free = getattr(areas, "free", None)
+    extra = np.zeros((0, 4))
+
+    def disc_chains(dense: np.ndarray) -> tuple[list[np.ndarray] | None, str, np.ndarray]:
         discs = disc_points(dense[:, 0], dense[:, 1], dense[:, 2], offsets)
+        ext = np.zeros((0, 4))
+        sliver = None
+        if sliver_width > 0 and grow_members > 0 and free is not None:
+            ext = sliver_boxes(boxes, discs.reshape(-1, 2), free, sliver_width, grow_members)
+            wide = boxes[np.min(boxes[:, 2:] - boxes[:, :2], axis=1) >= sliver_width]
+            sliver = ~_in_boxes(discs.reshape(-1, 2), wide).any(axis=1).reshape(discs.shape[:2])
+        cand = np.vstack((boxes, ext))
         chains = []
         for d in range(discs.shape[1]):
-            ch = member_chain(boxes, discs[:, d], margin)
+            ch = member_chain(cand, discs[:, d], margin, overlap_at=None if sliver is None else sliver[:, d])
+            if ch is None and sliver is not None:  # the overlap rule walked into a dead end
+                ch = member_chain(cand, discs[:, d], margin)
             if ch is None:
-                return None, f"disc {d} of the pose path has no chain of safe areas and portal bridges"
+                return None, f"disc {d} of the pose path has no chain of safe areas and portal bridges", ext
             chains.append(ch)
-        return chains, "ok"
+        return chains, "ok", ext
 
-    chains, why = disc_chains(dense)
+    chains, why, extra = disc_chains(dense)
     if chains is None and smoothed:  # the lattice route itself
         dense, kinds = densify(route, offsets)
         smoothed = False
-        chains, why = disc_chains(dense)
+        chains, why, extra = disc_chains(dense)
     if chains is None:
         return None, why
-    discs = disc_points(dense[:, 0], dense[:, 1], dense[:, 2], offsets)
     c = int(np.argmin(np.hypot(*offsets.T)))
-    corridor = corridor_of_points(areas, discs[:, c])
-    if corridor is None or chain_walk(rects, corridor, discs[:, c]) is None:
+
+    def centre_corridor(dense: np.ndarray) -> np.ndarray | None:
+        discs = disc_points(dense[:, 0], dense[:, 1], dense[:, 2], offsets)
+        corridor = corridor_of_points(areas, discs[:, c])
+        return None if corridor is None or chain_walk(rects, corridor, discs[:, c]) is None else corridor
+
+    corridor = centre_corridor(dense)
+    if corridor is None and smoothed:  # the lattice route itself
+        dense, kinds = densify(route, offsets)
+        smoothed = False
+        chains, why, extra = disc_chains(dense)
+        if chains is None:
+            return None, why
+        corridor = centre_corridor(dense)
+    if corridor is None:
         return None, "the pose path's centre crosses a corner between safe areas"
+    discs = disc_points(dense[:, 0], dense[:, 1], dense[:, 2], offsets)
     v_scale = None
     if raster is not None and slow_clearance > 0:
         clr = raster.clearance_at(discs).min(axis=-1)
@@ -479,6 +563,17 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
     inf = dict(info or {})
     if grow_members > 0:
         inf["grown_members"] = float(grow_members)
+    used = np.unique(np.concatenate(chains)) if chains else np.zeros(0, dtype=np.int64)
+    n_base = len(boxes)
+    if extra.shape[0] and used.max() >= n_base:  # keep the extra boxes a chain uses, renumbered
+        keep = used[used >= n_base] - n_base
+        renum = np.full(extra.shape[0], -1, dtype=np.int64)
+        renum[keep] = n_base + np.arange(keep.size)
+        chains = [np.where(ch >= n_base, renum[np.maximum(ch - n_base, 0)], ch) for ch in chains]
+        extra = extra[keep]
+        inf["sliver_boxes"] = int(keep.size)
+    else:
+        extra = np.zeros((0, 4))
     inf.update(pose_route=True, pose_smoothed=smoothed, corridor_areas=int(corridor.size), path_length_m=path_len,
                duration_s=float(times[-1]), pose_search_ms=route.time_ms, pose_nodes=route.nodes,
                pose_reverse_m=float(sum(np.hypot(*(b[:2] - a[:2])) for a, b, k in
@@ -488,4 +583,5 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
                route_ms=(time.perf_counter() - t0) * 1e3)
     wp = route.poses[:, :2].copy()
     return Plan(True, "ok", corridor, np.asarray(goal, float).copy(), wp, dense[:, :2].copy(), dense[:, :2].copy(),
-                ref, inf, tuple(chains)), "ok"
+                ref, inf, tuple(chains), extra if extra.shape[0] else None,
+                _area_of_boxes(rects, extra) if extra.shape[0] else None), "ok"

@@ -156,6 +156,17 @@ class PointRaster:
         clearance = ndimage.distance_transform_edt(free) * cell if free.any() else np.zeros(free.shape)
         return PointRaster(origin, float(cell), free, clearance)
 
+    @staticmethod
+    def of_free(cells) -> PointRaster:
+        """The free cells of a grid's :class:`~sanav_mj.mapping.grow.FreeCells` (the cells of
+        the map inflated for a disc, where the safe areas and every box grown from them lie)
+        as a raster at the grid's own cells, with its clearance."""
+        sat = np.asarray(cells.sat)
+        occ = sat[1:, 1:] - sat[:-1, 1:] - sat[1:, :-1] + sat[:-1, :-1]
+        free = occ == 0
+        clearance = ndimage.distance_transform_edt(free) * cells.resolution if free.any() else np.zeros(free.shape)
+        return PointRaster(np.asarray(cells.origin, dtype=float).copy(), float(cells.resolution), free, clearance)
+
     def index(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Cell indices (iy, ix) of points (..., 2) [m] and whether they are on the raster."""
         q = np.floor((np.asarray(pts, dtype=float) - self.origin) / self.cell)

@@ -58,6 +58,10 @@ class Plan:
             cover: indices into :func:`sanav_mj.planning.pose_search.member_boxes` (the
             safe areas, then one portal bridge per edge of ``SafeAreas.edges``) of the
             member boxes that disc's centre walks, in order.
+        extra_members: None, or (X, 4) [m] boxes of free cells the per-disc chains may also
+            index (after the member boxes: index ``R + E + x`` is ``extra_members[x]``), the
+            sliver boxes of :func:`sanav_mj.planning.pose_reference.sliver_boxes`.
+        extra_areas: None, or (X,) int the safe area each extra box belongs to (for J_SA).
     """
 
     ok: bool
@@ -70,3 +74,5 @@ class Plan:
     reference: Reference | None
     info: dict[str, Any] = field(default_factory=dict)
     disc_corridors: tuple[np.ndarray, ...] | None = None
+    extra_members: np.ndarray | None = None
+    extra_areas: np.ndarray | None = None

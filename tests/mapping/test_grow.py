@@ -186,3 +186,59 @@ def test_compiled_summed_area_table_equals_the_cumsums():
     object.__setattr__(g, "occupied", np.asarray(STAIRS, dtype=np.uint8))
     assert grow_kernel.summed_area(g.occupied) is None
     assert np.array_equal(FreeCells.of(g).sat, FreeCells.of(grid(STAIRS)).sat)
+
+
+def _diagonal(n: int = 8, width: int = 3) -> np.ndarray:
+    """(n, n) occupancy: a diagonal strip of free cells, free where 0 <= column - row <= width."""
+    r, c = np.mgrid[0:n, 0:n]
+    return ~((c - r >= 0) & (c - r <= width))
+
+
+def test_grow_point_diagonal_strip_known_answer():
+    from sanav_mj.mapping.grow import grow_point
+
+    cells = FreeCells.of(grid(_diagonal()))
+    # the point in cell (row 3, column 5): round 1 moves -x to column 4, +x to column 6, not -y
+    # (row 2, column 6 is 4 off the diagonal), +y to row 4; round 2 moves nothing
+    box = grow_point(cells, [0.55, 0.32], limit=1.0)
+    np.testing.assert_allclose(box, [0.4, 0.3, 0.7, 0.5], atol=1e-12)
+    occ = _diagonal()
+    i0, j0, i1, j1 = 3, 4, 5, 7
+    assert not occ[i0:i1, j0:j1].any()  # every cell of the box is free
+    # maximal: each side blocked by an occupied cell next to it
+    assert occ[i0:i1, j0 - 1].any() and occ[i0:i1, j1].any()
+    assert occ[i0 - 1, j0:j1].any() and occ[i1, j0:j1].any()
+
+
+def test_grow_point_contains_point_and_is_maximal_everywhere():
+    from sanav_mj.mapping.grow import grow_point
+
+    occ = _diagonal(10, 3)
+    cells = FreeCells.of(grid(occ))
+    ny, nx = occ.shape
+    for i in range(ny):
+        for j in range(nx):
+            p = np.array([0.1 * j + 0.03, 0.1 * i + 0.07])
+            box = grow_point(cells, p, limit=1.0)
+            if occ[i, j]:
+                assert box is None
+                continue
+            assert box[0] <= p[0] <= box[2] and box[1] <= p[1] <= box[3]
+            i0, j0, i1, j1 = cells.cells_of(box)
+            assert not occ[i0:i1, j0:j1].any()
+            assert j0 == 0 or occ[i0:i1, j0 - 1].any()
+            assert j1 == nx or occ[i0:i1, j1].any()
+            assert i0 == 0 or occ[i0 - 1, j0:j1].any()
+            assert i1 == ny or occ[i1, j0:j1].any()
+
+
+def test_grow_point_outside_grid_or_limited():
+    from sanav_mj.mapping.grow import grow_point
+
+    cells = FreeCells.of(grid(np.zeros((4, 4), dtype=bool)))
+    assert grow_point(cells, [-0.01, 0.2], limit=1.0) is None
+    assert grow_point(cells, [0.2, 0.41], limit=1.0) is None
+    # limit 0.1 m: one cell out per side from cell (1, 1)
+    np.testing.assert_allclose(grow_point(cells, [0.15, 0.15], limit=0.1), [0.0, 0.0, 0.3, 0.3], atol=1e-12)
+    with pytest.raises(ValueError, match="point"):
+        grow_point(cells, [0.1, np.nan], limit=1.0)

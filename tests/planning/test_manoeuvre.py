@@ -125,3 +125,10 @@ def test_manoeuvre_route_none_without_a_manoeuvre_and_unchanged_without_need():
 def test_config_rejects_bad_values(field, value):
     with pytest.raises(ValueError, match=field):
         ManoeuvreConfig(**{field: value})
+
+
+@pytest.mark.parametrize("field", ["sliver_width", "slow_clearance"])
+def test_config_rejects_negative_sliver_settings(field):
+    with pytest.raises(ValueError, match=field):
+        ManoeuvreConfig(**{field: -0.01})
+    assert getattr(ManoeuvreConfig(**{field: 0.0}), field) == 0.0
