@@ -47,7 +47,7 @@ control thread only the hand-over; the run stays deterministic (the hand-over st
 Before a first plan exists (at the start the cells around the robot behind the sensor are
 unknown, so the robot's own position is not yet safe) the robot turns on the spot, which
 keeps its body inside the disc it already occupies, until its position is safe; with
-``SensingConfig.scan_turn_stop`` (default) it brakes so as to come to rest where the lidar's
+``SensingConfig.scan_turn_stop`` (opt-in) it brakes so as to come to rest where the lidar's
 field of view will have swept the unknown cells near its own points
 (:mod:`~sanav_mj.control.scan_turn`), so the SA-MPC does not have to brake the turn.
 

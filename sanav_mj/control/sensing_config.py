@@ -144,12 +144,12 @@ class SensingConfig:
             inflation radius of the own points' cells (predicted from the lidar's offset and
             field of view, :func:`~sanav_mj.control.scan_turn.sweep_angle`), turning at up to
             ``scan_turn_rate`` (capped by ``RobotParams.w_max``) and at least
-            ``scan_turn_creep`` until the own points are safe. Default True: the first
-            motion came 0.27 s sooner on 20 BARN-like worlds (seed 0, discs; 2.42 -> 2.15 s),
-            and on the 100 worlds (discs, lidar) seed 0 / seed 1 the mean BARN metric went
-            0.343 -> 0.347 / 0.322 -> 0.330 (89 -> 87 / 86 -> 86 at the goal, 0 collisions),
-            the paper scenarios with the lidar (seeds 0-4, both modes) 50 / 50, 0 collisions
-            (docs/results.md, "Lidar tempo"). False: at ``scan_turn_rate`` until
+            ``scan_turn_creep`` until the own points are safe. Off by default: the first
+            motion comes 0.27 s sooner on 20 BARN-like worlds (seed 0, discs; 2.42 -> 2.15 s)
+            and the paper scenarios with the lidar stay 50 / 50 with 0 collisions, but on the
+            100 BARN-like worlds (discs, lidar, with the safe braking fallback) seeds 0-4 gave
+            426 / 500 at the goal against 441 / 500 with it off, mean BARN 0.331 against
+            0.338 (docs/results.md, "Lidar tempo"). False: at ``scan_turn_rate`` until
             they are (the SA-MPC then brakes the turn, overshooting by about
             ``rate^2 / (2 alpha_max)``, 0.5 rad at 2 rad/s). Only the turn's speed changes:
             the robot turns on the spot either way and the first plan still waits for the own
@@ -188,7 +188,7 @@ class SensingConfig:
     route_polyline: bool = False
     grow: float = 0.0
     unseen_route: float = 0.0
-    scan_turn_stop: bool = True
+    scan_turn_stop: bool = False
     scan_turn_route: bool = False
     scan_turn_creep: float = 0.5
 

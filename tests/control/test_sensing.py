@@ -152,7 +152,7 @@ def test_the_braking_turn_keeps_its_rate_on_steps_without_a_scan():
     rate) turns at the rate the last scan's field of view gives on the unchanged map, not at
     the plain ``scan_turn_rate``: the commands equal those of a run whose scans add nothing."""
     def run(every):
-        sc, ctrl = _ctrl(localise=False)
+        sc, ctrl = _ctrl(localise=False, scan_turn_stop=True)
         blind = _wall_scan(2.0)
         blind.hit[:] = False
         blind.ranges[:] = 0.05  # sees nothing: the map stays as the first step leaves it
