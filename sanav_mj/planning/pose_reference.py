@@ -518,13 +518,6 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
             chains.append(ch)
         return chains, "ok", ext
 
-    chains, why, extra = disc_chains(dense)
-    if chains is None and smoothed:  # the lattice route itself
-        dense, kinds = densify(route, offsets)
-        smoothed = False
-        chains, why, extra = disc_chains(dense)
-    if chains is None:
-        return None, why
     c = int(np.argmin(np.hypot(*offsets.T)))
 
     def centre_corridor(dense: np.ndarray) -> np.ndarray | None:
@@ -532,16 +525,24 @@ def route_plan(areas: SafeAreas, route: PoseRoute, goal: np.ndarray, offsets: np
         corridor = corridor_of_points(areas, discs[:, c])
         return None if corridor is None or chain_walk(rects, corridor, discs[:, c]) is None else corridor
 
-    corridor = centre_corridor(dense)
-    if corridor is None and smoothed:  # the lattice route itself
-        dense, kinds = densify(route, offsets)
-        smoothed = False
+    def tries(first: tuple):
+        """The smoothed route (when there is one), then the lattice route itself (densified
+        only when it is needed)."""
+        yield first
+        if first[2]:
+            yield (*densify(route, offsets), False)
+
+    # the first route whose every disc has a chain and whose centre has a corridor
+    for dense, kinds, smoothed in tries((dense, kinds, smoothed)):
         chains, why, extra = disc_chains(dense)
         if chains is None:
-            return None, why
+            continue
         corridor = centre_corridor(dense)
-    if corridor is None:
-        return None, "the pose path's centre crosses a corner between safe areas"
+        if corridor is not None:
+            break
+        why = "the pose path's centre crosses a corner between safe areas"
+    else:
+        return None, why
     discs = disc_points(dense[:, 0], dense[:, 1], dense[:, 2], offsets)
     v_scale = None
     if raster is not None and slow_clearance > 0:
