@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from sanav_mj.control.footprint import disc_centres
 from sanav_mj.sim.runner import Episode
 
 
@@ -32,12 +33,12 @@ def path_length(xy: np.ndarray) -> float:
     return float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
 
 
-def safe_area_violations(xy: np.ndarray, rects: np.ndarray, tol: float = 1e-9) -> int:
-    """Number of positions (K, 2) [m] that lie outside every rectangle (R, 4) [m]."""
+def _outside(xy: np.ndarray, rects: np.ndarray, tol: float) -> np.ndarray:
+    """(K,) bool: each position (K, 2) [m] outside every rectangle (R, 4) [m] widened by ``tol``."""
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
     rects = np.asarray(rects, dtype=float).reshape(-1, 4)
     if len(rects) == 0:
-        return int(len(xy))
+        return np.ones(len(xy), dtype=bool)
     x = xy[:, 0:1]
     y = xy[:, 1:2]
     inside = (
@@ -46,7 +47,12 @@ def safe_area_violations(xy: np.ndarray, rects: np.ndarray, tol: float = 1e-9) -
         & (y >= rects[None, :, 1] - tol)
         & (y <= rects[None, :, 3] + tol)
     )
-    return int(np.sum(~inside.any(axis=1)))
+    return ~inside.any(axis=1)
+
+
+def safe_area_violations(xy: np.ndarray, rects: np.ndarray, tol: float = 1e-9) -> int:
+    """Number of positions (K, 2) [m] that lie outside every rectangle (R, 4) [m]."""
+    return int(np.sum(_outside(xy, rects, tol)))
 
 
 def body_points(poses: np.ndarray, offsets: np.ndarray | None) -> np.ndarray:
@@ -56,9 +62,7 @@ def body_points(poses: np.ndarray, offsets: np.ndarray | None) -> np.ndarray:
     poses = np.asarray(poses, dtype=float).reshape(-1, 3)
     if offsets is None:
         return poses[:, None, :2]
-    o = np.asarray(offsets, dtype=float).reshape(-1, 2)
-    c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
-    return np.stack((poses[:, 0:1] + o[:, 0] * c - o[:, 1] * s, poses[:, 1:2] + o[:, 0] * s + o[:, 1] * c), axis=-1)
+    return disc_centres(poses, np.asarray(offsets, dtype=float).reshape(-1, 2))
 
 
 def step_violations(poses: np.ndarray, rects: np.ndarray, offsets: np.ndarray | None = None,
@@ -69,19 +73,8 @@ def step_violations(poses: np.ndarray, rects: np.ndarray, offsets: np.ndarray | 
     ``offsets`` is None (:func:`safe_area_violations` of the positions). A pose counts
     once however many of its points are outside."""
     pts = body_points(poses, offsets)
-    if pts.shape[1] == 1:
-        return safe_area_violations(pts[:, 0], rects, tol)
     k, p = pts.shape[:2]
-    if k == 0:
-        return 0
-    rects = np.asarray(rects, dtype=float).reshape(-1, 4)
-    if len(rects) == 0:
-        return int(k)
-    x = pts.reshape(-1, 2)[:, 0:1]
-    y = pts.reshape(-1, 2)[:, 1:2]
-    inside = ((x >= rects[None, :, 0] - tol) & (x <= rects[None, :, 2] + tol)
-              & (y >= rects[None, :, 1] - tol) & (y <= rects[None, :, 3] + tol)).any(axis=1)
-    return int(np.sum(~inside.reshape(k, p).all(axis=1)))
+    return int(np.sum(_outside(pts.reshape(-1, 2), rects, tol).reshape(k, p).any(axis=1)))
 
 
 def episode_json(
