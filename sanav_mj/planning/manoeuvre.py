@@ -28,6 +28,8 @@ from typing import Callable
 
 import numpy as np
 
+from sanav_mj.planning.pose_search import disc_points
+
 
 @dataclass(frozen=True)
 class ManoeuvreConfig:
@@ -235,13 +237,9 @@ def union_admissible(rects: np.ndarray, offsets: np.ndarray) -> Callable[[np.nda
 
     def f(poses: np.ndarray) -> np.ndarray:
         x = np.asarray(poses, dtype=float)
-        c, s = np.cos(x[:, 2]), np.sin(x[:, 2])
-        ok = np.ones(len(x), dtype=bool)
-        for ox, oy in o:
-            px = (x[:, 0] + ox * c - oy * s)[:, None]
-            py = (x[:, 1] + ox * s + oy * c)[:, None]
-            ok &= ((r[None, :, 0] <= px) & (px <= r[None, :, 2]) & (r[None, :, 1] <= py) & (py <= r[None, :, 3])).any(axis=1)
-        return ok
+        p = disc_points(x[:, 0], x[:, 1], x[:, 2], o)  # (K, D, 2)
+        px, py = p[..., 0:1], p[..., 1:2]
+        return ((r[:, 0] <= px) & (px <= r[:, 2]) & (r[:, 1] <= py) & (py <= r[:, 3])).any(axis=-1).all(axis=-1)
     return f
 
 
