@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sanav_mj.control.footprint import disc_centres
 from sanav_mj.control.unicycle import rollout_np
 
 __all__ = ["BrakeChoice", "choose_brake", "rect_slack"]
@@ -88,10 +89,7 @@ def choose_brake(x0: np.ndarray, candidates: list[tuple[str, np.ndarray]], offse
     scores = []
     for _, u in candidates:
         xs = rollout_np(x0, u if gains is None else u * gains, dt)[1:]
-        c, s = np.cos(xs[:, 2])[:, None], np.sin(xs[:, 2])[:, None]
-        px = xs[:, 0:1] + o[:, 0] * c - o[:, 1] * s
-        py = xs[:, 1:2] + o[:, 0] * s + o[:, 1] * c
-        scores.append(float(rect_slack(np.column_stack((px.ravel(), py.ravel())), rects).min()))
+        scores.append(float(rect_slack(disc_centres(xs, o).reshape(-1, 2), rects).min()))
     inside = [i for i, v in enumerate(scores) if v >= -tol]
     if inside:
         best = inside[0]
